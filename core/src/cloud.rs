@@ -1,0 +1,205 @@
+//! Point clouds and PLY files (SPEC §2): written as binary little-endian `x y z confidence`
+//! float32; read from ASCII or binary PLY with float or double coordinates.
+
+use std::path::Path;
+
+use crate::io::write_atomic;
+use crate::{Error, Result};
+
+/// A point cloud with a per-point confidence and, when it came from a camera, the pixel index.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PointCloud {
+    /// Positions, mm.
+    pub points: Vec<[f32; 3]>,
+    /// Confidence per point (1 when unknown).
+    pub confidence: Vec<f32>,
+    /// Row-major camera pixel index per point (empty when not organised).
+    pub pixels: Vec<u32>,
+}
+
+impl PointCloud {
+    /// Compact a dense per-pixel buffer (NaN = no point) with its confidence map.
+    pub fn from_dense(dense: &[[f32; 3]], confidence: &[f32]) -> PointCloud {
+        let n = dense.iter().filter(|p| p[0].is_finite()).count();
+        let mut cloud = PointCloud { points: Vec::with_capacity(n), confidence: Vec::with_capacity(n), pixels: Vec::with_capacity(n) };
+        for (i, p) in dense.iter().enumerate() {
+            if p[0].is_finite() {
+                cloud.points.push(*p);
+                cloud.confidence.push(confidence.get(i).copied().unwrap_or(1.0));
+                cloud.pixels.push(i as u32);
+            }
+        }
+        cloud
+    }
+
+    /// Number of points.
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    /// Whether the cloud has no points.
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// Write a binary little-endian PLY (x y z confidence, float32), atomically.
+    pub fn write_ply(&self, path: &Path) -> Result<()> {
+        let header = format!(
+            "ply\nformat binary_little_endian 1.0\ncomment written by RIS {}\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nproperty float confidence\nend_header\n",
+            env!("CARGO_PKG_VERSION"),
+            self.points.len()
+        );
+        let mut buf = Vec::with_capacity(header.len() + self.points.len() * 16);
+        buf.extend_from_slice(header.as_bytes());
+        for (p, c) in self.points.iter().zip(&self.confidence) {
+            for v in [p[0], p[1], p[2], *c] {
+                buf.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        write_atomic(path, &buf)
+    }
+
+    /// Read a PLY file (ASCII, binary little- or big-endian); `confidence` defaults to 1.
+    pub fn read_ply(path: &Path) -> Result<PointCloud> {
+        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        parse_ply(&bytes).map_err(|message| Error::Format { path: path.to_path_buf(), message })
+    }
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum Encoding {
+    Ascii,
+    Le,
+    Be,
+}
+
+fn type_size(t: &str) -> Option<usize> {
+    Some(match t {
+        "char" | "uchar" | "int8" | "uint8" => 1,
+        "short" | "ushort" | "int16" | "uint16" => 2,
+        "int" | "uint" | "float" | "int32" | "uint32" | "float32" => 4,
+        "double" | "float64" => 8,
+        _ => return None,
+    })
+}
+
+fn read_scalar(t: &str, b: &[u8], enc: Encoding) -> f64 {
+    macro_rules! num {
+        ($ty:ty, $n:expr) => {{
+            let mut a = [0u8; $n];
+            a.copy_from_slice(&b[..$n]);
+            (if enc == Encoding::Be { <$ty>::from_be_bytes(a) } else { <$ty>::from_le_bytes(a) }) as f64
+        }};
+    }
+    match t {
+        "char" | "int8" => f64::from(b[0] as i8),
+        "uchar" | "uint8" => f64::from(b[0]),
+        "short" | "int16" => num!(i16, 2),
+        "ushort" | "uint16" => num!(u16, 2),
+        "int" | "int32" => num!(i32, 4),
+        "uint" | "uint32" => num!(u32, 4),
+        "float" | "float32" => num!(f32, 4),
+        _ => num!(f64, 8),
+    }
+}
+
+fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
+    let end = bytes.windows(11).position(|w| w == b"end_header\n").ok_or("no end_header line")? + 11;
+    let header = std::str::from_utf8(&bytes[..end]).map_err(|_| "header is not text")?;
+    let mut lines = header.lines();
+    if lines.next() != Some("ply") {
+        return Err("missing `ply` magic".into());
+    }
+    let mut enc = Encoding::Ascii;
+    let mut count = 0usize;
+    let mut props: Vec<(String, String)> = Vec::new();
+    let mut in_vertex = false;
+    let mut before_vertex_bytes = false;
+    for line in lines {
+        let f: Vec<&str> = line.split_whitespace().collect();
+        match f.as_slice() {
+            ["format", "ascii", _] => enc = Encoding::Ascii,
+            ["format", "binary_little_endian", _] => enc = Encoding::Le,
+            ["format", "binary_big_endian", _] => enc = Encoding::Be,
+            ["element", "vertex", n] => {
+                count = n.parse().map_err(|_| format!("bad vertex count `{n}`"))?;
+                in_vertex = true;
+            }
+            ["element", name, n] => {
+                if !in_vertex && n.parse::<usize>().map_err(|_| "bad element count")? > 0 {
+                    before_vertex_bytes = true;
+                    tracing::warn!(element = name, "PLY element before vertices");
+                }
+                in_vertex = false;
+            }
+            ["property", "list", ..] if in_vertex => return Err("list properties on vertices are not supported".into()),
+            ["property", t, name] if in_vertex => {
+                type_size(t).ok_or_else(|| format!("unknown property type `{t}`"))?;
+                props.push((t.to_string(), name.to_string()));
+            }
+            _ => {}
+        }
+    }
+    if before_vertex_bytes {
+        return Err("elements before `vertex` are not supported".into());
+    }
+    let idx = |n: &str| props.iter().position(|(_, p)| p == n);
+    let (ix, iy, iz) = match (idx("x"), idx("y"), idx("z")) {
+        (Some(a), Some(b), Some(c)) => (a, b, c),
+        _ => return Err("vertex has no x, y, z properties".into()),
+    };
+    let ic = idx("confidence");
+    let mut cloud = PointCloud { points: Vec::with_capacity(count), confidence: Vec::with_capacity(count), pixels: Vec::new() };
+    let body = &bytes[end..];
+    let mut vals = vec![0f64; props.len()];
+    match enc {
+        Encoding::Ascii => {
+            let text = std::str::from_utf8(body).map_err(|_| "ASCII body is not text")?;
+            let mut tokens = text.split_whitespace();
+            for k in 0..count {
+                for v in vals.iter_mut() {
+                    *v = tokens.next().ok_or(format!("truncated at vertex {k}"))?.parse().map_err(|_| format!("bad number at vertex {k}"))?;
+                }
+                cloud.points.push([vals[ix] as f32, vals[iy] as f32, vals[iz] as f32]);
+                cloud.confidence.push(ic.map_or(1.0, |c| vals[c] as f32));
+            }
+        }
+        _ => {
+            let sizes: Vec<usize> = props.iter().filter_map(|(t, _)| type_size(t)).collect();
+            let stride: usize = sizes.iter().sum();
+            if body.len() < stride * count {
+                return Err(format!("truncated: {count} vertices need {} bytes, file has {}", stride * count, body.len()));
+            }
+            for rec in body.chunks_exact(stride).take(count) {
+                let mut off = 0;
+                for (j, (t, _)) in props.iter().enumerate() {
+                    vals[j] = read_scalar(t, &rec[off..], enc);
+                    off += sizes[j];
+                }
+                cloud.points.push([vals[ix] as f32, vals[iy] as f32, vals[iz] as f32]);
+                cloud.confidence.push(ic.map_or(1.0, |c| vals[c] as f32));
+            }
+        }
+    }
+    Ok(cloud)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn binary_round_trip_and_ascii_double_input() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let cloud = PointCloud { points: vec![[1.0, 2.0, 3.0], [-4.5, 0.25, 1e3]], confidence: vec![0.5, 1.0], pixels: vec![] };
+        let p = dir.path().join("a.ply");
+        cloud.write_ply(&p).expect("write");
+        assert_eq!(PointCloud::read_ply(&p).expect("read"), cloud);
+        let q = dir.path().join("b.ply");
+        std::fs::write(&q, "ply\nformat ascii 1.0\nelement vertex 2\nproperty double x\nproperty double y\nproperty double z\nproperty uchar intensity\nend_header\n1 2 3 9\n4 5 6 7\n").expect("write");
+        let back = PointCloud::read_ply(&q).expect("ascii");
+        assert_eq!(back.points, vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
+        std::fs::write(&q, "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n").expect("write");
+        assert!(PointCloud::read_ply(&q).expect_err("truncated").to_string().contains("b.ply"));
+    }
+}

@@ -1,0 +1,251 @@
+//! Pass 2 of decoding: Gray-code line shifting to sub-pixel projector coordinates (Ch. 4.4.4).
+
+use rayon::prelude::*;
+
+use super::ScanDirection;
+use crate::image::Sample;
+use crate::pattern::{binary_to_gray, flipped_bit};
+
+/// Eq. 4.17: the sub-pixel position where a pattern and its inverse cross between camera pixels
+/// `n` (pattern `a`, inverse `b`) and `n + 1` (pattern `d`, inverse `c`):
+/// `X = n + (A − B) / ((C − B) − (D − A))`. `None` when the curves do not cross in `[n, n+1]`.
+///
+/// ```
+/// use ris_core::decode::edge_position;
+/// let x = edge_position(899.0, 61.0, 34.0, 64.0, 29.0).unwrap();
+/// assert!((x - 899.4).abs() < 0.05);
+/// ```
+pub fn edge_position(n: f32, a: f32, b: f32, c: f32, d: f32) -> Option<f32> {
+    let den = (c - b) - (d - a);
+    let t = (a - b) / den;
+    (den != 0.0 && (0.0..=1.0).contains(&t)).then_some(n + t)
+}
+
+/// Frames needed to evaluate the pattern-minus-inverse signal of any bit at any pixel.
+pub(super) struct Signal<'a, T> {
+    pub white: &'a [T],
+    pub black: &'a [T],
+    pub pat: &'a [&'a [T]],
+    pub inv: Option<&'a [&'a [T]]>,
+}
+
+impl<T: Sample> Signal<'_, T> {
+    /// Pattern minus inverse (or 2P − W − K) of bit `j` at pixel `i`, divided by the pixel's
+    /// contrast so that albedo differences between neighbouring pixels do not move the edge.
+    #[inline]
+    fn normalized(&self, j: usize, i: usize) -> f32 {
+        let w = self.white[i].to_i32();
+        let k = self.black[i].to_i32();
+        let p = self.pat[j][i].to_i32();
+        let s = match self.inv {
+            Some(inv) => p - inv[j][i].to_i32(),
+            None => 2 * p - w - k,
+        };
+        s as f32 / (w - k).max(1) as f32
+    }
+}
+
+/// One located boundary on a line: between pixels `gap` and `gap + 1`, at position `x`, for the
+/// boundary before code cell `boundary`.
+#[derive(Clone, Copy, Debug)]
+struct Edge {
+    gap: u32,
+    x: f32,
+    boundary: u32,
+}
+
+/// Geometry of one camera line through the row-major image.
+#[derive(Clone, Copy)]
+struct Line {
+    start: usize,
+    stride: usize,
+    len: usize,
+}
+
+struct Code {
+    bits: u32,
+    step: f32,
+    max_jump: u32,
+}
+
+/// Continuous projector coordinate per pixel (NaN where invalid) and a quality factor (1 where
+/// interpolated between two edges, 0.5 where extrapolated from one, 0 where invalid).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn subpixel<T: Sample>(
+    w: usize,
+    h: usize,
+    codes: &[i32],
+    signal: &Signal<'_, T>,
+    dir: ScanDirection,
+    bits: u32,
+    step: u32,
+    max_jump: u32,
+) -> (Vec<f32>, Vec<f32>) {
+    let code = Code { bits, step: step as f32, max_jump };
+    let mut coord = vec![f32::NAN; w * h];
+    let mut quality = vec![0f32; w * h];
+    match dir {
+        ScanDirection::AlongRows => {
+            coord.par_chunks_mut(w).zip(quality.par_chunks_mut(w)).enumerate().for_each_init(
+                Vec::new,
+                |edges, (y, (out, q))| {
+                    process_line(Line { start: y * w, stride: 1, len: w }, codes, signal, &code, edges, out, q);
+                },
+            );
+        }
+        ScanDirection::AlongColumns => {
+            // Columns are processed into a transposed buffer so each task owns its output.
+            let mut coord_t = vec![f32::NAN; w * h];
+            let mut quality_t = vec![0f32; w * h];
+            coord_t.par_chunks_mut(h).zip(quality_t.par_chunks_mut(h)).enumerate().for_each_init(
+                Vec::new,
+                |edges, (x, (out, q))| {
+                    process_line(Line { start: x, stride: w, len: h }, codes, signal, &code, edges, out, q);
+                },
+            );
+            coord.par_chunks_mut(w).zip(quality.par_chunks_mut(w)).enumerate().for_each(|(y, (c, q))| {
+                for x in 0..w {
+                    c[x] = coord_t[x * h + y];
+                    q[x] = quality_t[x * h + y];
+                }
+            });
+        }
+    }
+    (coord, quality)
+}
+
+fn process_line<T: Sample>(
+    line: Line,
+    codes: &[i32],
+    signal: &Signal<'_, T>,
+    code: &Code,
+    edges: &mut Vec<Edge>,
+    out: &mut [f32],
+    quality: &mut [f32],
+) {
+    let at = |n: usize| line.start + n * line.stride;
+    find_edges(line, codes, signal, code, edges);
+    let mut n = 0usize;
+    let mut e_idx = 0usize;
+    while n < line.len {
+        let c = codes[at(n)];
+        if c < 0 {
+            n += 1;
+            continue;
+        }
+        let a = n;
+        while n + 1 < line.len && codes[at(n + 1)] == c {
+            n += 1;
+        }
+        let e = n;
+        n += 1;
+        // Edges of the gaps just before a and just after e that bound cell c.
+        while e_idx < edges.len() && (edges[e_idx].gap as usize) + 1 < a {
+            e_idx += 1;
+        }
+        let c = c as u32;
+        let bounds = |edge: &Edge| edge.boundary == c || edge.boundary == c + 1;
+        let left = (a > 0)
+            .then(|| edges[e_idx..].iter().take_while(|ed| ed.gap as usize == a - 1).position(bounds))
+            .flatten()
+            .map(|k| e_idx + k);
+        let mut r_idx = e_idx;
+        while r_idx < edges.len() && (edges[r_idx].gap as usize) < e {
+            r_idx += 1;
+        }
+        let right = edges[r_idx..].iter().take_while(|ed| ed.gap as usize == e).position(bounds).map(|k| r_idx + k);
+        let pos = |ed: &Edge| code.step * ed.boundary as f32 - 0.5;
+        let (lo, hi) = (code.step * c as f32 - 0.5, code.step * (c + 1) as f32 - 0.5);
+        match (left, right) {
+            (Some(l), Some(r)) if edges[l].boundary != edges[r].boundary => {
+                let (xl, pl, xr, pr) = (edges[l].x, pos(&edges[l]), edges[r].x, pos(&edges[r]));
+                let span = xr - xl;
+                for m in a..=e {
+                    out[m] = if span > 1e-6 { pl + (m as f32 - xl) * (pr - pl) / span } else { 0.5 * (pl + pr) };
+                    quality[m] = 1.0;
+                }
+            }
+            (Some(k), None) | (None, Some(k)) | (Some(k), Some(_)) => {
+                // One usable edge: extrapolate with the slope of the neighbouring cell's edges.
+                let neighbour = if left == Some(k) { k.checked_sub(1) } else { Some(k + 1) }
+                    .and_then(|j| edges.get(j))
+                    .filter(|o| o.boundary.abs_diff(edges[k].boundary) == 1 && (o.x - edges[k].x).abs() > 1e-3);
+                if let Some(o) = neighbour {
+                    let slope = (pos(&edges[k]) - pos(o)) / (edges[k].x - o.x);
+                    for m in a..=e {
+                        let v = pos(&edges[k]) + (m as f32 - edges[k].x) * slope;
+                        if v >= lo - 0.25 * code.step && v <= hi + 0.25 * code.step {
+                            out[m] = v.clamp(lo, hi);
+                            quality[m] = 0.5;
+                        }
+                    }
+                }
+            }
+            (None, None) => {}
+        }
+    }
+}
+
+/// Locate every sub-pixel boundary along the line, in order of the gap it lies in.
+fn find_edges<T: Sample>(line: Line, codes: &[i32], signal: &Signal<'_, T>, code: &Code, edges: &mut Vec<Edge>) {
+    edges.clear();
+    for n in 0..line.len.saturating_sub(1) {
+        let i0 = line.start + n * line.stride;
+        let i1 = i0 + line.stride;
+        let (c0, c1) = (codes[i0], codes[i1]);
+        if c0 < 0 || c1 < 0 || c0 == c1 {
+            continue;
+        }
+        let (lo, hi) = (c0.min(c1) as u32, c0.max(c1) as u32);
+        if hi - lo > code.max_jump {
+            continue;
+        }
+        let differs = binary_to_gray(c0 as u32) ^ binary_to_gray(c1 as u32);
+        let first = edges.len();
+        for b in lo + 1..=hi {
+            let k = flipped_bit(b);
+            if (differs >> k) & 1 == 0 || k >= code.bits {
+                continue;
+            }
+            let j = (code.bits - 1 - k) as usize;
+            let (s0, s1) = (signal.normalized(j, i0), signal.normalized(j, i1));
+            let den = s0 - s1;
+            if den == 0.0 {
+                continue;
+            }
+            let t = s0 / den;
+            if (0.0..=1.0).contains(&t) {
+                edges.push(Edge { gap: n as u32, x: n as f32 + t, boundary: b });
+            }
+        }
+        // Several boundaries in one gap must come out in the order of their codes.
+        if edges.len() - first > 1 {
+            let run = &mut edges[first..];
+            let increasing = c1 > c0;
+            run.sort_by(|p, q| if increasing { p.boundary.cmp(&q.boundary) } else { q.boundary.cmp(&p.boundary) });
+            for i in 1..run.len() {
+                if run[i].x < run[i - 1].x {
+                    let mid = 0.5 * (run[i].x + run[i - 1].x);
+                    run[i].x = mid;
+                    run[i - 1].x = mid;
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn worked_examples_of_eq_4_17() {
+        // (pattern, inverse) at n and (pattern, inverse) at n+1, from Ch. 4.5.
+        let cases = [(899.0, 61.0, 34.0, 29.0, 64.0, 899.4), (899.0, 80.0, 28.0, 25.0, 62.0, 899.6), (1293.0, 133.0, 80.0, 83.0, 141.0, 1293.5)];
+        for (n, a, b, d, c, want) in cases {
+            let x = edge_position(n, a, b, c, d).expect("crossing");
+            assert!((x - want).abs() < 0.05, "got {x}, text says {want}");
+        }
+        assert_eq!(edge_position(10.0, 50.0, 20.0, 20.0, 50.0), None, "no crossing");
+    }
+}

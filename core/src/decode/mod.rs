@@ -1,0 +1,261 @@
+//! Gray-code decoding (SPEC §5): camera pixel → continuous projector column (and row).
+//!
+//! Two passes, both data-parallel over image lines:
+//! 1. [`binarize`]: dual-projection binarization (or a mid-level threshold when the capture has
+//!    no inverses), Gray → binary, validity by contrast. Gives an integer code cell per pixel.
+//! 2. [`line_shift`]: along each camera line crossing the stripes, every boundary between code
+//!    cells is located to sub-pixel precision where pattern and inverse cross (Eq. 4.17), and each
+//!    valid pixel's projector coordinate is interpolated between the edges around it.
+//!
+//! Sub-pixel convention: code cell `i` covers projector pixels `[step*i, step*i + step - 1]`; the
+//! boundary between cells `i-1` and `i` lies at projector coordinate `step*i - 0.5`. A decoded
+//! value is therefore in the same pixel-centre convention as the camera (SPEC §2).
+
+mod binarize;
+mod line_shift;
+
+pub use line_shift::edge_position;
+
+use std::path::Path;
+
+use rayon::prelude::*;
+
+use crate::capture::CaptureSet;
+use crate::image::{Pixels, Sample};
+use crate::io::npy;
+use crate::pattern::{CodeAxis, CodeLayout, Pattern};
+use crate::{Error, Result};
+
+/// Thresholds of the decoder, in 8-bit grey levels (scaled by 257 for 16-bit captures).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DecodeParams {
+    /// A pixel is valid only where white − black exceeds this.
+    pub contrast_threshold: f32,
+    /// A bit is undecidable where |pattern − inverse| ≤ this. 0 decides by sign alone: a pixel
+    /// that straddles an edge then takes the code of one side, and line shifting places it.
+    pub bit_threshold: f32,
+    /// Largest code jump between neighbouring pixels still bridged by sub-pixel edges; larger
+    /// jumps are depth discontinuities.
+    pub max_jump: u32,
+}
+
+impl Default for DecodeParams {
+    fn default() -> Self {
+        DecodeParams { contrast_threshold: 12.0, bit_threshold: 0.0, max_jump: 2 }
+    }
+}
+
+/// How bits were decided.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Binarization {
+    /// Pattern against its inverse (robust).
+    Dual,
+    /// Pattern against the mid level of white and black (no inverses; lower quality).
+    Threshold,
+}
+
+/// The direction along which a code's stripes are crossed in the camera image.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ScanDirection {
+    /// Along camera rows (stripes roughly vertical in the image).
+    AlongRows,
+    /// Along camera columns (stripes roughly horizontal in the image).
+    AlongColumns,
+}
+
+/// Decoded correspondence maps of one capture.
+#[derive(Clone, Debug)]
+pub struct Decoded {
+    /// Camera width.
+    pub width: u32,
+    /// Camera height.
+    pub height: u32,
+    /// Projector code layout.
+    pub layout: CodeLayout,
+    /// Continuous projector column per camera pixel, NaN where invalid.
+    pub col: Vec<f32>,
+    /// Continuous projector row per camera pixel, when the capture has row codes.
+    pub row: Option<Vec<f32>>,
+    /// Per-pixel confidence in [0, 1]: (white − black) relative to full scale, halved without
+    /// inverses, halved again where the coordinate was extrapolated from one edge. 0 = invalid.
+    pub confidence: Vec<f32>,
+    /// How the column bits were decided.
+    pub binarization: Binarization,
+}
+
+impl Decoded {
+    /// Number of pixels with a valid column.
+    pub fn valid_count(&self) -> usize {
+        self.col.iter().filter(|v| v.is_finite()).count()
+    }
+
+    /// The map along `axis`.
+    pub fn map(&self, axis: CodeAxis) -> Option<&[f32]> {
+        match axis {
+            CodeAxis::Column => Some(&self.col),
+            CodeAxis::Row => self.row.as_deref(),
+        }
+    }
+
+    /// Write `col.npy`, `row.npy` (if any), `confidence.npy` and `decoded.png` (false colour:
+    /// hue from column, brightness from row stripes, black where invalid) into `dir`.
+    pub fn save(&self, dir: &Path) -> Result<()> {
+        crate::io::create_dir(dir)?;
+        let shape = [self.height as usize, self.width as usize];
+        npy::write(&dir.join("col.npy"), &shape, &self.col)?;
+        if let Some(row) = &self.row {
+            npy::write(&dir.join("row.npy"), &shape, row)?;
+        }
+        npy::write(&dir.join("confidence.npy"), &shape, &self.confidence)?;
+        let rgb = self.false_colour();
+        crate::image::save_rgb_png(&dir.join("decoded.png"), self.width, self.height, &rgb)
+    }
+
+    /// False-colour rendering of the maps (RGB8): hue encodes the column, a gentle modulation
+    /// encodes the row, invalid pixels are black.
+    pub fn false_colour(&self) -> Vec<u8> {
+        let w = self.layout.width.max(1) as f32;
+        let h = self.layout.height.max(1) as f32;
+        let mut rgb = vec![0u8; self.col.len() * 3];
+        rgb.par_chunks_mut(3).enumerate().for_each(|(i, px)| {
+            let c = self.col[i];
+            if !c.is_finite() {
+                return;
+            }
+            let value = match &self.row {
+                Some(r) if r[i].is_finite() => 0.75 + 0.25 * ((r[i] / h) * 16.0 * std::f32::consts::TAU).cos(),
+                _ => 1.0,
+            };
+            px.copy_from_slice(&hue_to_rgb(c / w, value));
+        });
+        rgb
+    }
+}
+
+/// Map t in [0, 1] to a rainbow colour (blue → red) with brightness `value`.
+pub fn hue_to_rgb(t: f32, value: f32) -> [u8; 3] {
+    let h = (1.0 - t.clamp(0.0, 1.0)) * 240.0 / 60.0;
+    let x = 1.0 - ((h % 2.0) - 1.0).abs();
+    let (r, g, b) = match h as u32 {
+        0 => (1.0, x, 0.0),
+        1 => (x, 1.0, 0.0),
+        2 => (0.0, 1.0, x),
+        3 => (0.0, x, 1.0),
+        _ => (x, 0.0, 1.0),
+    };
+    let v = value.clamp(0.0, 1.0) * 255.0;
+    [(r * v) as u8, (g * v) as u8, (b * v) as u8]
+}
+
+/// The frames of one capture as borrowed sample planes of one type.
+struct Planes<'a, T> {
+    white: &'a [T],
+    black: &'a [T],
+    /// Per axis: pattern frames and inverse frames (if any), MSB first.
+    col: (Vec<&'a [T]>, Option<Vec<&'a [T]>>),
+    row: Option<(Vec<&'a [T]>, Option<Vec<&'a [T]>>)>,
+}
+
+/// Decode a capture set into continuous projector coordinates.
+pub fn decode(capture: &CaptureSet, params: &DecodeParams) -> Result<Decoded> {
+    let need = |p: Pattern| {
+        capture.frame(p).ok_or_else(|| Error::Insufficient(format!("capture has no `{}` frame", p.name())))
+    };
+    need(Pattern::White)?;
+    need(Pattern::Black)?;
+    if !capture.has_code(CodeAxis::Column) {
+        return Err(Error::Insufficient("capture has no complete column code".into()));
+    }
+    let all_u8 = capture.frames.values().all(|f| matches!(f.pixels, Pixels::U8(_)));
+    if all_u8 {
+        let planes = borrow_planes(capture, |p| match capture.frame(p).map(|f| &f.pixels) {
+            Some(Pixels::U8(v)) => Some(v.as_slice()),
+            _ => None,
+        })?;
+        Ok(decode_planes(capture, &planes, params, 1.0))
+    } else {
+        // Mixed or 16-bit: widen everything to 16 bit once.
+        let widened: std::collections::BTreeMap<Pattern, Vec<u16>> =
+            capture.frames.par_iter().map(|(p, img)| (*p, img.to_u16())).collect();
+        let planes = borrow_planes(capture, |p| widened.get(&p).map(|v| v.as_slice()))?;
+        Ok(decode_planes(capture, &planes, params, 257.0))
+    }
+}
+
+fn borrow_planes<'a, T>(
+    capture: &'a CaptureSet,
+    get: impl Fn(Pattern) -> Option<&'a [T]>,
+) -> Result<Planes<'a, T>> {
+    let plane = |p: Pattern| -> Result<&'a [T]> {
+        get(p).ok_or_else(|| Error::Insufficient(format!("capture has no usable `{}` frame", p.name())))
+    };
+    let axis_planes = |axis: CodeAxis| -> Result<(Vec<&'a [T]>, Option<Vec<&'a [T]>>)> {
+        let n = capture.layout.bits(axis);
+        let pat = (0..n).map(|bit| plane(Pattern::Gray { axis, bit, inverse: false })).collect::<Result<Vec<_>>>()?;
+        let inv = if capture.has_inverses(axis) {
+            Some((0..n).map(|bit| plane(Pattern::Gray { axis, bit, inverse: true })).collect::<Result<Vec<_>>>()?)
+        } else {
+            None
+        };
+        Ok((pat, inv))
+    };
+    Ok(Planes {
+        white: plane(Pattern::White)?,
+        black: plane(Pattern::Black)?,
+        col: axis_planes(CodeAxis::Column)?,
+        row: if capture.has_code(CodeAxis::Row) { Some(axis_planes(CodeAxis::Row)?) } else { None },
+    })
+}
+
+fn decode_planes<T: Sample>(capture: &CaptureSet, planes: &Planes<'_, T>, params: &DecodeParams, scale: f32) -> Decoded {
+    let (w, h) = (capture.width as usize, capture.height as usize);
+    let full_scale = 255.0 * scale;
+    let thresholds = binarize::Thresholds {
+        contrast: (params.contrast_threshold * scale).round() as i32,
+        bit: (params.bit_threshold * scale).round() as i32,
+    };
+    let layout = capture.layout;
+    let run_axis = |axis: CodeAxis, frames: &(Vec<&[T]>, Option<Vec<&[T]>>)| -> (Vec<f32>, Vec<f32>, Binarization) {
+        let codes = binarize::codes(w, h, planes.white, planes.black, &frames.0, frames.1.as_deref(), layout.cells(axis), thresholds);
+        let dir = scan_direction(w, h, &codes);
+        let signal = line_shift::Signal { white: planes.white, black: planes.black, pat: &frames.0, inv: frames.1.as_deref() };
+        let (coord, quality) = line_shift::subpixel(w, h, &codes, &signal, dir, layout.bits(axis), layout.step(axis), params.max_jump);
+        let bin = if frames.1.is_some() { Binarization::Dual } else { Binarization::Threshold };
+        (coord, quality, bin)
+    };
+    let (col, quality, binarization) = run_axis(CodeAxis::Column, &planes.col);
+    let row = planes.row.as_ref().map(|f| run_axis(CodeAxis::Row, f).0);
+    let mode_factor = if binarization == Binarization::Dual { 1.0 } else { 0.5 };
+    let mut confidence = vec![0f32; w * h];
+    confidence.par_iter_mut().enumerate().for_each(|(i, c)| {
+        if col[i].is_finite() {
+            let contrast = planes.white[i].to_i32() - planes.black[i].to_i32();
+            *c = (contrast as f32 / full_scale).clamp(0.0, 1.0) * mode_factor * quality[i];
+        }
+    });
+    tracing::debug!(valid = col.iter().filter(|v| v.is_finite()).count(), total = w * h, "decoded");
+    Decoded { width: capture.width, height: capture.height, layout, col, row, confidence, binarization }
+}
+
+/// Choose the camera direction that crosses the stripes of a code: the one along which the code
+/// changes more often (sampled on every 8th line).
+fn scan_direction(w: usize, h: usize, codes: &[i32]) -> ScanDirection {
+    let mut along_rows = 0usize;
+    let mut along_cols = 0usize;
+    for y in (0..h.saturating_sub(1)).step_by(8) {
+        for x in 0..w - 1 {
+            let a = codes[y * w + x];
+            if a >= 0 {
+                let r = codes[y * w + x + 1];
+                let d = codes[(y + 1) * w + x];
+                along_rows += usize::from(r >= 0 && r != a);
+                along_cols += usize::from(d >= 0 && d != a);
+            }
+        }
+    }
+    if along_cols > along_rows {
+        ScanDirection::AlongColumns
+    } else {
+        ScanDirection::AlongRows
+    }
+}

@@ -1,0 +1,214 @@
+//! The small math vocabulary of RIS: vectors, the pinhole camera with Brown distortion, and
+//! line–line geometry. Millimetres; `X_c = R X_w + t` (SPEC §2).
+
+pub use nalgebra::{Matrix3, Matrix4, Vector2, Vector3};
+
+/// 3-vector of f64.
+pub type Vec3 = Vector3<f64>;
+/// 3×3 matrix of f64.
+pub type Mat3 = Matrix3<f64>;
+
+/// OpenCV's Brown distortion (k1, k2, p1, p2, k3) on normalized image coordinates.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Distortion {
+    /// Radial r².
+    pub k1: f64,
+    /// Radial r⁴.
+    pub k2: f64,
+    /// Tangential.
+    pub p1: f64,
+    /// Tangential.
+    pub p2: f64,
+    /// Radial r⁶.
+    pub k3: f64,
+}
+
+impl Distortion {
+    /// From OpenCV order `[k1, k2, p1, p2, k3]`.
+    pub fn from_array(d: [f64; 5]) -> Self {
+        Distortion { k1: d[0], k2: d[1], p1: d[2], p2: d[3], k3: d[4] }
+    }
+
+    /// As OpenCV order `[k1, k2, p1, p2, k3]`.
+    pub fn to_array(&self) -> [f64; 5] {
+        [self.k1, self.k2, self.p1, self.p2, self.k3]
+    }
+
+    /// Whether all coefficients are zero.
+    pub fn is_zero(&self) -> bool {
+        self.to_array().iter().all(|&c| c == 0.0)
+    }
+
+    /// Distort normalized coordinates.
+    #[inline]
+    pub fn distort(&self, x: f64, y: f64) -> (f64, f64) {
+        let r2 = x * x + y * y;
+        let radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3));
+        (
+            x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x),
+            y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y,
+        )
+    }
+
+    /// Invert [`Distortion::distort`] by Newton's method (converges to ~1e-12 in a few steps for
+    /// realistic lenses).
+    pub fn undistort(&self, xd: f64, yd: f64) -> (f64, f64) {
+        if self.is_zero() {
+            return (xd, yd);
+        }
+        let (mut x, mut y) = (xd, yd);
+        for _ in 0..20 {
+            let (fx, fy) = self.distort(x, y);
+            let (ex, ey) = (fx - xd, fy - yd);
+            if ex * ex + ey * ey < 1e-24 {
+                break;
+            }
+            // Jacobian by central differences: robust and cheap enough for LUT construction.
+            let h = 1e-7;
+            let (ax, ay) = self.distort(x + h, y);
+            let (bx, by) = self.distort(x - h, y);
+            let (cx, cy) = self.distort(x, y + h);
+            let (dx, dy) = self.distort(x, y - h);
+            let (j00, j10) = ((ax - bx) / (2.0 * h), (ay - by) / (2.0 * h));
+            let (j01, j11) = ((cx - dx) / (2.0 * h), (cy - dy) / (2.0 * h));
+            let det = j00 * j11 - j01 * j10;
+            if det.abs() < 1e-12 {
+                break;
+            }
+            x -= (j11 * ex - j01 * ey) / det;
+            y -= (-j10 * ex + j00 * ey) / det;
+        }
+        (x, y)
+    }
+}
+
+/// A pinhole device (camera or projector) with pose `X_dev = R X_w + t`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Pinhole {
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Intrinsics K.
+    pub k: Mat3,
+    /// Lens distortion.
+    pub dist: Distortion,
+    /// Rotation world → device.
+    pub r: Mat3,
+    /// Translation world → device.
+    pub t: Vec3,
+}
+
+impl Pinhole {
+    /// Optical centre in the world frame, `C = −Rᵀ t`.
+    pub fn center(&self) -> Vec3 {
+        -(self.r.transpose() * self.t)
+    }
+
+    /// Project a world point to (distorted) pixel coordinates; `None` behind the device.
+    pub fn project(&self, p: &Vec3) -> Option<(f64, f64)> {
+        let c = self.r * p + self.t;
+        if c.z <= 1e-9 {
+            return None;
+        }
+        let (x, y) = self.dist.distort(c.x / c.z, c.y / c.z);
+        Some((self.k[(0, 0)] * x + self.k[(0, 1)] * y + self.k[(0, 2)], self.k[(1, 1)] * y + self.k[(1, 2)]))
+    }
+
+    /// Undistorted normalized coordinates of pixel (u, v).
+    pub fn normalized(&self, u: f64, v: f64) -> (f64, f64) {
+        let fy = self.k[(1, 1)];
+        let yd = (v - self.k[(1, 2)]) / fy;
+        let xd = (u - self.k[(0, 2)] - self.k[(0, 1)] * yd) / self.k[(0, 0)];
+        self.dist.undistort(xd, yd)
+    }
+
+    /// Unit direction (world frame) of the ray through pixel (u, v).
+    pub fn ray(&self, u: f64, v: f64) -> Vec3 {
+        let (x, y) = self.normalized(u, v);
+        self.direction(x, y)
+    }
+
+    /// Unit world direction for undistorted normalized coordinates (x, y).
+    #[inline]
+    pub fn direction(&self, x: f64, y: f64) -> Vec3 {
+        (self.r.transpose() * Vec3::new(x, y, 1.0)).normalize()
+    }
+}
+
+/// Parameter α of the point on line `o1 + α d1` closest to line `o2 + β d2`, with the distance
+/// between the lines; `None` for parallel lines.
+#[inline]
+pub fn closest_on_first(o1: &Vec3, d1: &Vec3, o2: &Vec3, d2: &Vec3) -> Option<(f64, f64)> {
+    let w0 = o1 - o2;
+    let (a, b, c) = (d1.dot(d1), d1.dot(d2), d2.dot(d2));
+    let (d, e) = (d1.dot(&w0), d2.dot(&w0));
+    let den = a * c - b * b;
+    if den.abs() < 1e-12 * a * c {
+        return None;
+    }
+    let alpha = (b * e - c * d) / den;
+    let beta = (a * e - b * d) / den;
+    let gap = ((o1 + d1 * alpha) - (o2 + d2 * beta)).norm();
+    Some((alpha, gap))
+}
+
+/// Rotation matrix from XYZ Euler angles in degrees (applied x, then y, then z).
+pub fn rotation_xyz_deg(angles: [f64; 3]) -> Mat3 {
+    let [a, b, c] = angles.map(f64::to_radians);
+    let rx = Mat3::new(1.0, 0.0, 0.0, 0.0, a.cos(), -a.sin(), 0.0, a.sin(), a.cos());
+    let ry = Mat3::new(b.cos(), 0.0, b.sin(), 0.0, 1.0, 0.0, -b.sin(), 0.0, b.cos());
+    let rz = Mat3::new(c.cos(), -c.sin(), 0.0, c.sin(), c.cos(), 0.0, 0.0, 0.0, 1.0);
+    rz * ry * rx
+}
+
+/// World → camera rotation and translation of a device at `eye` looking at `target`, with the
+/// image's v axis pointing along −`up` (so `up` appears at the top of the image).
+pub fn look_at(eye: Vec3, target: Vec3, up: Vec3) -> (Mat3, Vec3) {
+    let z = (target - eye).normalize();
+    let x = z.cross(&up).normalize();
+    let y = z.cross(&x);
+    let r = Mat3::from_rows(&[x.transpose(), y.transpose(), z.transpose()]);
+    (r, -(r * eye))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn undistort_inverts_distort() {
+        let d = Distortion::from_array([-0.266, -0.0386, 0.0018, -0.0003, 0.2384]);
+        for &(x, y) in &[(0.0, 0.0), (0.3, -0.2), (-0.5, 0.4), (0.1, 0.6)] {
+            let (xd, yd) = d.distort(x, y);
+            let (xu, yu) = d.undistort(xd, yd);
+            assert!((xu - x).abs() < 1e-10 && (yu - y).abs() < 1e-10, "({x},{y}) -> ({xu},{yu})");
+        }
+    }
+
+    #[test]
+    fn project_and_ray_agree() {
+        let (r, t) = look_at(Vec3::new(300.0, -50.0, 1600.0), Vec3::zeros(), Vec3::y());
+        let cam = Pinhole {
+            width: 800,
+            height: 600,
+            k: Mat3::new(1800.0, 0.0, 400.0, 0.0, 1800.0, 300.0, 0.0, 0.0, 1.0),
+            dist: Distortion::from_array([-0.1, 0.05, 0.001, -0.001, 0.0]),
+            r,
+            t,
+        };
+        let p = Vec3::new(40.0, -25.0, 30.0);
+        let (u, v) = cam.project(&p).expect("in front");
+        let dir = cam.ray(u, v);
+        let to_p = (p - cam.center()).normalize();
+        assert!((dir - to_p).norm() < 1e-9);
+        let (cu, cv) = cam.project(&Vec3::zeros()).expect("target");
+        assert!((cu - 400.0).abs() < 1e-6 && (cv - 300.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn closest_point_of_skew_lines() {
+        let (alpha, gap) = closest_on_first(&Vec3::zeros(), &Vec3::x(), &Vec3::new(2.0, 0.0, 1.0), &Vec3::y()).expect("skew");
+        assert!((alpha - 2.0).abs() < 1e-12 && (gap - 1.0).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,160 @@
+//! Grayscale images (8 or 16 bit), read from PNG, BMP (also 8-bit palette), TIFF or JPEG and
+//! written as PNG. Colour input is converted to luma.
+
+use std::path::Path;
+
+use crate::io::write_atomic;
+use crate::{Error, Result};
+
+/// Pixel storage of a grayscale image.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Pixels {
+    /// 8-bit samples.
+    U8(Vec<u8>),
+    /// 16-bit samples.
+    U16(Vec<u16>),
+}
+
+/// A row-major grayscale image.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GrayImage {
+    /// Width, pixels.
+    pub width: u32,
+    /// Height, pixels.
+    pub height: u32,
+    /// The samples, row-major.
+    pub pixels: Pixels,
+}
+
+/// Sample types the decoder works on directly (u8 and u16).
+pub trait Sample: Copy + Send + Sync + 'static {
+    /// The value widened to i32.
+    fn to_i32(self) -> i32;
+}
+
+impl Sample for u8 {
+    #[inline(always)]
+    fn to_i32(self) -> i32 {
+        i32::from(self)
+    }
+}
+
+impl Sample for u16 {
+    #[inline(always)]
+    fn to_i32(self) -> i32 {
+        i32::from(self)
+    }
+}
+
+impl GrayImage {
+    /// An 8-bit image from row-major samples.
+    pub fn from_u8(width: u32, height: u32, data: Vec<u8>) -> Self {
+        debug_assert_eq!(data.len(), (width * height) as usize);
+        GrayImage { width, height, pixels: Pixels::U8(data) }
+    }
+
+    /// A 16-bit image from row-major samples.
+    pub fn from_u16(width: u32, height: u32, data: Vec<u16>) -> Self {
+        debug_assert_eq!(data.len(), (width * height) as usize);
+        GrayImage { width, height, pixels: Pixels::U16(data) }
+    }
+
+    /// Bits per sample (8 or 16).
+    pub fn bit_depth(&self) -> u8 {
+        match self.pixels {
+            Pixels::U8(_) => 8,
+            Pixels::U16(_) => 16,
+        }
+    }
+
+    /// The samples widened to 16 bit (8-bit values scaled by 257 so that 255 → 65535).
+    pub fn to_u16(&self) -> Vec<u16> {
+        match &self.pixels {
+            Pixels::U8(v) => v.iter().map(|&p| u16::from(p) * 257).collect(),
+            Pixels::U16(v) => v.clone(),
+        }
+    }
+
+    /// Sample at (x, y) as f32 (no bounds check beyond the slice's).
+    pub fn get(&self, x: u32, y: u32) -> f32 {
+        let i = (y * self.width + x) as usize;
+        match &self.pixels {
+            Pixels::U8(v) => f32::from(v[i]),
+            Pixels::U16(v) => f32::from(v[i]),
+        }
+    }
+
+    /// Read an image file; colour images are converted to luma, palette BMPs are expanded.
+    pub fn load(path: &Path) -> Result<GrayImage> {
+        let reader = image::ImageReader::open(path)
+            .map_err(|e| Error::io(path, e))?
+            .with_guessed_format()
+            .map_err(|e| Error::io(path, e))?;
+        let img = reader.decode().map_err(|e| Error::Image {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        let (w, h) = (img.width(), img.height());
+        use image::DynamicImage as D;
+        Ok(match img {
+            D::ImageLuma8(b) => GrayImage::from_u8(w, h, b.into_raw()),
+            D::ImageLuma16(b) => GrayImage::from_u16(w, h, b.into_raw()),
+            D::ImageLumaA16(_) | D::ImageRgb16(_) | D::ImageRgba16(_) => {
+                GrayImage::from_u16(w, h, img.into_luma16().into_raw())
+            }
+            other => GrayImage::from_u8(w, h, other.into_luma8().into_raw()),
+        })
+    }
+
+    /// Write as PNG (8 or 16 bit, as stored) through a temporary file and a rename.
+    pub fn save_png(&self, path: &Path) -> Result<()> {
+        let mut buf = Vec::new();
+        let enc = image::codecs::png::PngEncoder::new(&mut buf);
+        use image::ImageEncoder;
+        let res = match &self.pixels {
+            Pixels::U8(v) => enc.write_image(v, self.width, self.height, image::ExtendedColorType::L8),
+            Pixels::U16(v) => {
+                let bytes: Vec<u8> = v.iter().flat_map(|p| p.to_be_bytes()).collect();
+                enc.write_image(&bytes, self.width, self.height, image::ExtendedColorType::L16)
+            }
+        };
+        res.map_err(|e| Error::Image { path: path.to_path_buf(), message: e.to_string() })?;
+        write_atomic(path, &buf)
+    }
+}
+
+/// Write an 8-bit RGB image as PNG through a temporary file and a rename.
+pub fn save_rgb_png(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<()> {
+    let mut buf = Vec::new();
+    use image::ImageEncoder;
+    image::codecs::png::PngEncoder::new(&mut buf)
+        .write_image(rgb, width, height, image::ExtendedColorType::Rgb8)
+        .map_err(|e| Error::Image { path: path.to_path_buf(), message: e.to_string() })?;
+    write_atomic(path, &buf)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn png_round_trip_8_and_16_bit() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let a = GrayImage::from_u8(3, 2, vec![0, 1, 2, 253, 254, 255]);
+        let b = GrayImage::from_u16(2, 2, vec![0, 1, 40000, 65535]);
+        for (name, img) in [("a.png", &a), ("b.png", &b)] {
+            let p = dir.path().join(name);
+            img.save_png(&p).expect("save");
+            assert_eq!(&GrayImage::load(&p).expect("load"), img);
+        }
+    }
+
+    #[test]
+    fn unreadable_file_names_the_path() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("broken.png");
+        std::fs::write(&p, b"not a png").expect("write");
+        let msg = GrayImage::load(&p).expect_err("must fail").to_string();
+        assert!(msg.contains("broken.png"), "{msg}");
+    }
+}

@@ -1,0 +1,22 @@
+//! RIS core: the pure algorithms of a structured-light measurement cell.
+//!
+//! Nothing here talks to hardware. The modules follow the data flow of a scan:
+//! [`pattern`] (what the projector shows) → [`capture`] (what the camera saw, on disk) →
+//! [`decode`] (camera pixel → sub-pixel projector coordinate) → [`sensor`] (coordinates → 3D
+//! points, plane-induced parallax or classical triangulation) → [`cloud`] (PLY). [`sim`] renders
+//! captures of known scenes so that every stage can be checked against ground truth.
+//! Conventions (frames, units, pixel centres) are those of the project's SPEC §2.
+
+pub mod capture;
+pub mod cloud;
+pub mod decode;
+pub mod error;
+pub mod geometry;
+pub mod image;
+pub mod io;
+pub mod mesh;
+pub mod pattern;
+pub mod sensor;
+pub mod sim;
+
+pub use error::{Error, Result};

@@ -1,0 +1,229 @@
+//! Sensor models (SPEC §6): the plane-induced parallax model with a reference recording, and
+//! classical triangulation for sensors with a fully calibrated projector.
+
+mod classical;
+mod file;
+mod parallax;
+mod rays;
+pub mod reference;
+
+pub use classical::Classical;
+pub use file::{CameraSection, ProjectorSection, ReferenceSection, ResidualSection, Sensor, SensorFile, ToCommonSection};
+pub use parallax::{parallel_height, Parallax, ParallaxPoint};
+pub use rays::RayTable;
+
+use rayon::prelude::*;
+
+use crate::capture::CaptureSet;
+use crate::cloud::PointCloud;
+use crate::decode::{decode, DecodeParams, Decoded};
+use crate::geometry::{Matrix4, Pinhole, Vec3};
+use crate::io::npy;
+use crate::pattern::CodeAxis;
+use crate::sensor::reference::{PlaneCodeMap, PlaneSample, DEFAULT_DEGREE};
+use crate::{Error, Result};
+
+/// Which model to reconstruct with.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ModelChoice {
+    /// Parallax when the sensor has a reference, else classical.
+    #[default]
+    Auto,
+    /// Plane-induced parallax (needs `[reference]` and the projector centre).
+    Parallax,
+    /// Classical triangulation (needs the full projector calibration).
+    Classical,
+}
+
+enum Model {
+    Parallax { geometry: Parallax, axis: CodeAxis, residual: Option<Vec<[f32; 3]>> },
+    Classical(Classical),
+}
+
+/// A sensor ready to turn decoded captures into point clouds.
+pub struct Reconstructor {
+    camera: Pinhole,
+    rays: RayTable,
+    model: Model,
+    /// Sensor → cell transform, if the sensor file has one.
+    pub to_common: Option<Matrix4<f64>>,
+}
+
+impl Reconstructor {
+    /// Prepare `sensor`: build the ray table and, for the parallax model, decode and fit the
+    /// reference recording.
+    pub fn new(sensor: &Sensor, choice: ModelChoice, params: &DecodeParams) -> Result<Reconstructor> {
+        let use_parallax = match choice {
+            ModelChoice::Auto => sensor.reference.is_some(),
+            ModelChoice::Parallax => true,
+            ModelChoice::Classical => false,
+        };
+        let rays = RayTable::new(&sensor.camera);
+        let model = if use_parallax {
+            let dir = sensor.reference.as_ref().ok_or_else(|| Error::invalid("sensor", "reference", "the parallax model needs a [reference] capture"))?;
+            let op = sensor.projector_center.ok_or_else(|| Error::invalid("sensor", "projector.center", "the parallax model needs the projector centre"))?;
+            let capture = CaptureSet::load(dir)?;
+            check_size(&sensor.camera, capture.width, capture.height, &dir.display().to_string())?;
+            let reference = decode(&capture, params)?;
+            let (geometry, axis) = parallax_from_reference(&sensor.camera, &rays, op, &reference)?;
+            let residual = match &sensor.residual {
+                Some(path) => Some(load_residual(path, &sensor.camera)?),
+                None => None,
+            };
+            Model::Parallax { geometry, axis, residual }
+        } else {
+            let projector = sensor.projector.as_ref().ok_or_else(|| Error::invalid("sensor", "projector.k/r/t", "the classical model needs the full projector calibration"))?;
+            Model::Classical(Classical::new(&sensor.camera, projector))
+        };
+        Ok(Reconstructor { camera: sensor.camera.clone(), rays, model, to_common: sensor.to_common })
+    }
+
+    /// A parallax reconstructor from parts already in memory (simulation, tests).
+    pub fn parallax(camera: &Pinhole, projector_center: Vec3, reference: &Decoded) -> Result<Reconstructor> {
+        let rays = RayTable::new(camera);
+        let (geometry, axis) = parallax_from_reference(camera, &rays, projector_center, reference)?;
+        Ok(Reconstructor { camera: camera.clone(), rays, model: Model::Parallax { geometry, axis, residual: None }, to_common: None })
+    }
+
+    /// A classical reconstructor from both calibrations.
+    pub fn classical(camera: &Pinhole, projector: &Pinhole) -> Reconstructor {
+        Reconstructor { camera: camera.clone(), rays: RayTable::new(camera), model: Model::Classical(Classical::new(camera, projector)), to_common: None }
+    }
+
+    /// Name of the model in use.
+    pub fn model_name(&self) -> &'static str {
+        match self.model {
+            Model::Parallax { .. } => "parallax",
+            Model::Classical(_) => "classical",
+        }
+    }
+
+    /// Reconstruct every valid pixel into the sensor world frame (parallel over rows).
+    pub fn reconstruct(&self, decoded: &Decoded) -> Result<PointCloud> {
+        check_size(&self.camera, decoded.width, decoded.height, "decoded capture")?;
+        let w = decoded.width as usize;
+        let mut dense = vec![[f32::NAN; 3]; decoded.col.len()];
+        match &self.model {
+            Model::Parallax { geometry, axis, residual } => {
+                let codes = decoded.map(*axis).ok_or_else(|| {
+                    Error::Insufficient(format!("the sensor's reference is decoded along {axis:?} codes, which this capture lacks"))
+                })?;
+                dense.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
+                    for (u, out) in row.iter_mut().enumerate() {
+                        let i = v * w + u;
+                        let c = codes[i];
+                        if !c.is_finite() || !decoded.col[i].is_finite() {
+                            continue;
+                        }
+                        if let Some(pp) = geometry.point(&self.rays, i, f64::from(c)) {
+                            let mut p = pp.point;
+                            if let Some(res) = residual {
+                                let [a, b, cc] = res[i];
+                                let m = pp.shift;
+                                let e = f64::from(a) * m * m + f64::from(b) * m + f64::from(cc);
+                                let d = p - geometry.camera_center();
+                                if d.z.abs() > 1e-12 {
+                                    let s = (p.z - e - geometry.camera_center().z) / d.z;
+                                    p = geometry.camera_center() + d * s;
+                                }
+                            }
+                            *out = [p.x as f32, p.y as f32, p.z as f32];
+                        }
+                    }
+                });
+            }
+            Model::Classical(c) => {
+                let rows = decoded.row.as_deref();
+                dense.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
+                    for (u, out) in row.iter_mut().enumerate() {
+                        let i = v * w + u;
+                        let col = decoded.col[i];
+                        if !col.is_finite() {
+                            continue;
+                        }
+                        let r = rows.map(|r| r[i]).filter(|r| r.is_finite()).map(f64::from);
+                        let (x, y) = self.rays.get(i);
+                        if let Some(p) = c.point(x, y, f64::from(col), r) {
+                            *out = [p.x as f32, p.y as f32, p.z as f32];
+                        }
+                    }
+                });
+            }
+        }
+        Ok(PointCloud::from_dense(&dense, &decoded.confidence))
+    }
+}
+
+fn check_size(camera: &Pinhole, w: u32, h: u32, what: &str) -> Result<()> {
+    if (w, h) != (camera.width, camera.height) {
+        return Err(Error::invalid(what, "size", format!("is {w}x{h} but the sensor's camera is {}x{}", camera.width, camera.height)));
+    }
+    Ok(())
+}
+
+/// Fit the reference along the code axis that moves most along the epipolar lines.
+fn parallax_from_reference(camera: &Pinhole, rays: &RayTable, op: Vec3, reference: &Decoded) -> Result<(Parallax, CodeAxis)> {
+    check_size(camera, reference.width, reference.height, "reference capture")?;
+    let mut best: Option<(f64, Parallax, CodeAxis)> = None;
+    for axis in [CodeAxis::Column, CodeAxis::Row] {
+        let Some(codes) = reference.map(axis) else { continue };
+        let samples = plane_samples(camera, rays, codes);
+        if samples.len() < 1000 {
+            if axis == CodeAxis::Column {
+                return Err(Error::Insufficient(format!("reference has only {} valid pixels on the plane", samples.len())));
+            }
+            continue;
+        }
+        let map = PlaneCodeMap::fit(&samples, DEFAULT_DEGREE)?;
+        tracing::info!(?axis, rms = map.rms, inliers = map.inliers, samples = samples.len(), "reference fitted");
+        let geometry = Parallax::new(camera, op, map);
+        // Sensitivity: code change per mm along the epipolar line at the image centre.
+        let d = camera.ray(f64::from(camera.width) / 2.0, f64::from(camera.height) / 2.0);
+        let oc = camera.center();
+        let q = oc + d * (-oc.z / d.z);
+        let n = (op - oc).cross(&d);
+        let len = n.x.hypot(n.y).max(1e-12);
+        let (_, gx, gy) = geometry.map.eval(q.x, q.y);
+        let sens = (gx * n.y / len - gy * n.x / len).abs();
+        if best.as_ref().is_none_or(|b| sens > b.0) {
+            best = Some((sens, geometry, axis));
+        }
+    }
+    let (_, g, axis) = best.ok_or_else(|| Error::Insufficient("reference has no decodable code".into()))?;
+    Ok((g, axis))
+}
+
+/// Plane points of valid reference pixels, subsampled to at most ~300 000.
+fn plane_samples(camera: &Pinhole, rays: &RayTable, codes: &[f32]) -> Vec<PlaneSample> {
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    let stride = ((w * h) as f64 / 300_000.0).sqrt().ceil().max(1.0) as usize;
+    let oc = camera.center();
+    let r_t = camera.r.transpose();
+    (0..h)
+        .into_par_iter()
+        .step_by(stride)
+        .flat_map_iter(|v| {
+            let r_t = &r_t;
+            (0..w).step_by(stride).filter_map(move |u| {
+                let i = v * w + u;
+                let c = codes[i];
+                if !c.is_finite() {
+                    return None;
+                }
+                let (x, y) = rays.get(i);
+                let d = r_t * Vec3::new(x, y, 1.0);
+                let lam = -oc.z / d.z;
+                (lam > 0.0).then(|| PlaneSample { x: oc.x + lam * d.x, y: oc.y + lam * d.y, code: f64::from(c) })
+            })
+        })
+        .collect()
+}
+
+fn load_residual(path: &std::path::Path, camera: &Pinhole) -> Result<Vec<[f32; 3]>> {
+    let (shape, data) = npy::read::<f32>(path)?;
+    let want = [camera.height as usize, camera.width as usize, 3];
+    if shape != want {
+        return Err(Error::invalid(path.display(), "shape", format!("is {shape:?}, expected {want:?} (H × W × 3)")));
+    }
+    Ok(data.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+}

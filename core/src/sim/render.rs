@@ -1,0 +1,171 @@
+//! The render cache: the scene is ray-cast once per camera sub-sample (hit, shadow, projector
+//! coordinate, irradiance), so each frame is only a weighted look-up of the projected light plus
+//! noise.
+
+use rand::rngs::SmallRng;
+use rand::SeedableRng;
+use rand_distr::{Distribution, StandardNormal};
+use rayon::prelude::*;
+
+use super::light::Light;
+use super::scene::Scene;
+use crate::geometry::Vec3;
+
+/// One directly lit camera sub-sample: where it sits in the projector, and its weight
+/// (albedo × irradiance / sub-samples per pixel).
+#[derive(Clone, Copy, Debug)]
+struct LitSample {
+    u: f32,
+    v: f32,
+    weight: f32,
+}
+
+/// Ground truth per camera pixel, from the ray through the pixel centre.
+#[derive(Clone, Debug)]
+pub struct Truth {
+    /// Width.
+    pub width: u32,
+    /// Height.
+    pub height: u32,
+    /// Surface point (sensor world frame), NaN where the ray hits nothing.
+    pub xyz: Vec<[f32; 3]>,
+    /// Material index, 255 where nothing was hit.
+    pub material: Vec<u8>,
+    /// Fraction of the pixel's sub-samples lit by the projector (not shadowed).
+    pub lit: Vec<f32>,
+}
+
+/// Precomputed light transport of a scene.
+#[derive(Clone, Debug)]
+pub struct RenderCache {
+    width: u32,
+    height: u32,
+    offsets: Vec<u32>,
+    samples: Vec<LitSample>,
+    ambient: Vec<f32>,
+    /// Ground truth.
+    pub truth: Truth,
+}
+
+impl RenderCache {
+    /// Ray-cast the scene (parallel over camera rows).
+    pub fn build(scene: &Scene) -> RenderCache {
+        let (w, h) = (scene.camera.width as usize, scene.camera.height as usize);
+        let ss = scene.render.supersample as usize;
+        let inv_n = 1.0 / (ss * ss) as f64;
+        let oc = scene.camera.center();
+        let op = scene.projector.center();
+        let d0 = op.norm().max(1e-9);
+        struct Row {
+            counts: Vec<u32>,
+            samples: Vec<LitSample>,
+            ambient: Vec<f32>,
+            xyz: Vec<[f32; 3]>,
+            material: Vec<u8>,
+            lit: Vec<f32>,
+        }
+        let rows: Vec<Row> = (0..h)
+            .into_par_iter()
+            .map(|v| {
+                let mut row = Row { counts: vec![0; w], samples: Vec::new(), ambient: vec![0.0; w], xyz: vec![[f32::NAN; 3]; w], material: vec![255; w], lit: vec![0.0; w] };
+                for u in 0..w {
+                    let mut lit_count = 0usize;
+                    for sy in 0..ss {
+                        for sx in 0..ss {
+                            let uu = u as f64 + (sx as f64 + 0.5) / ss as f64 - 0.5;
+                            let vv = v as f64 + (sy as f64 + 0.5) / ss as f64 - 0.5;
+                            let d = scene.camera.ray(uu, vv);
+                            let Some((t, mut n, obj)) = scene.intersect(&oc, &d, 1e-6, f64::INFINITY) else { continue };
+                            let p = oc + d * t;
+                            if n.dot(&d) > 0.0 {
+                                n = -n;
+                            }
+                            let mat = &scene.materials[scene.objects[obj].material];
+                            let albedo = (mat.albedo * mat.texture.factor(&p)).clamp(0.0, 1.0);
+                            row.ambient[u] += (albedo * scene.ambient * inv_n) as f32;
+                            if let Some((pu, pv, irradiance)) = direct_light(scene, &p, &n, &op, d0) {
+                                lit_count += 1;
+                                row.samples.push(LitSample { u: pu as f32, v: pv as f32, weight: (albedo * irradiance * inv_n) as f32 });
+                                row.counts[u] += 1;
+                            }
+                        }
+                    }
+                    row.lit[u] = lit_count as f32 * inv_n as f32;
+                    let d = scene.camera.ray(u as f64, v as f64);
+                    if let Some((t, _, obj)) = scene.intersect(&oc, &d, 1e-6, f64::INFINITY) {
+                        let p = oc + d * t;
+                        row.xyz[u] = [p.x as f32, p.y as f32, p.z as f32];
+                        row.material[u] = scene.objects[obj].material.min(254) as u8;
+                    }
+                }
+                row
+            })
+            .collect();
+        let mut cache = RenderCache {
+            width: w as u32,
+            height: h as u32,
+            offsets: Vec::with_capacity(w * h + 1),
+            samples: Vec::with_capacity(rows.iter().map(|r| r.samples.len()).sum()),
+            ambient: Vec::with_capacity(w * h),
+            truth: Truth { width: w as u32, height: h as u32, xyz: Vec::with_capacity(w * h), material: Vec::with_capacity(w * h), lit: Vec::with_capacity(w * h) },
+        };
+        cache.offsets.push(0);
+        for row in rows {
+            for c in row.counts {
+                let last = *cache.offsets.last().unwrap_or(&0);
+                cache.offsets.push(last + c);
+            }
+            cache.samples.extend(row.samples);
+            cache.ambient.extend(row.ambient);
+            cache.truth.xyz.extend(row.xyz);
+            cache.truth.material.extend(row.material);
+            cache.truth.lit.extend(row.lit);
+        }
+        cache
+    }
+
+    /// Render one 8-bit frame of the projector showing `light`: signal = 255 × exposure ×
+    /// radiance, plus read and shot noise, rounded and clipped (saturation at 255).
+    pub fn render(&self, light: &Light, exposure: f64, noise: f64, shot_noise: f64, seed: u64) -> Vec<u8> {
+        let w = self.width as usize;
+        let mut out = vec![0u8; w * self.height as usize];
+        let gain = (255.0 * exposure) as f32;
+        out.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
+            let mut rng = SmallRng::seed_from_u64(seed ^ (v as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+            for (u, px) in row.iter_mut().enumerate() {
+                let i = v * w + u;
+                let mut radiance = self.ambient[i];
+                for s in &self.samples[self.offsets[i] as usize..self.offsets[i + 1] as usize] {
+                    radiance += s.weight * light.sample(s.u, s.v);
+                }
+                let signal = f64::from(gain * radiance);
+                let sigma = (noise * noise + shot_noise * signal).sqrt();
+                let z: f64 = if sigma > 0.0 { StandardNormal.sample(&mut rng) } else { 0.0 };
+                *px = (signal + sigma * z).round().clamp(0.0, 255.0) as u8;
+            }
+        });
+        out
+    }
+}
+
+/// Projector coordinate and irradiance at surface point `p` (normal `n`), or `None` when the
+/// projector does not reach it (behind, outside its image, self-shadowed or occluded).
+fn direct_light(scene: &Scene, p: &Vec3, n: &Vec3, op: &Vec3, d0: f64) -> Option<(f64, f64, f64)> {
+    let to_p = op - p;
+    let dist = to_p.norm();
+    let l = to_p / dist;
+    let cos = n.dot(&l);
+    if cos <= 0.0 {
+        return None;
+    }
+    let (pu, pv) = scene.projector.project(p)?;
+    let (pw, ph) = (f64::from(scene.projector.width), f64::from(scene.projector.height));
+    if pu < -2.0 || pv < -2.0 || pu > pw + 1.0 || pv > ph + 1.0 {
+        return None;
+    }
+    let origin = p + n * 1e-3;
+    if scene.intersect(&origin, &l, 0.0, dist - 2e-3).is_some() {
+        return None;
+    }
+    Some((pu, pv, cos * (d0 / dist).powi(2)))
+}

@@ -1,0 +1,366 @@
+//! Simulator scenes (SPEC §11): devices with photometry, materials and objects.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use super::shapes::{Object, Shape};
+use super::texture::Texture;
+use crate::geometry::{rotation_xyz_deg, Distortion, Mat3, Pinhole, Vec3};
+use crate::io::read_toml;
+use crate::mesh::{Bvh, TriangleMesh};
+use crate::sensor::{CameraSection, SensorFile};
+use crate::{Error, Result};
+
+/// `[camera]`: a sensor-file camera plus photometry.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimCamera {
+    /// Width, pixels.
+    pub width: u32,
+    /// Height, pixels.
+    pub height: u32,
+    /// Intrinsics.
+    pub k: [[f64; 3]; 3],
+    /// Distortion.
+    #[serde(default)]
+    pub dist: [f64; 5],
+    /// World → camera rotation.
+    pub r: [[f64; 3]; 3],
+    /// World → camera translation.
+    pub t: [f64; 3],
+    /// Relative exposure: signal = 255 × exposure × radiance.
+    #[serde(default = "one")]
+    pub exposure: f64,
+    /// Read noise σ, DN.
+    #[serde(default)]
+    pub noise: f64,
+    /// Shot-noise variance per DN of signal.
+    #[serde(default)]
+    pub shot_noise: f64,
+}
+
+/// `[projector]`: the full projector model of the simulator.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimProjector {
+    /// Width, pixels.
+    pub width: u32,
+    /// Height, pixels.
+    pub height: u32,
+    /// Intrinsics.
+    pub k: [[f64; 3]; 3],
+    /// Distortion.
+    #[serde(default)]
+    pub dist: [f64; 5],
+    /// World → projector rotation.
+    pub r: [[f64; 3]; 3],
+    /// World → projector translation.
+    pub t: [f64; 3],
+    /// Ambient light, fraction of full projector white.
+    #[serde(default)]
+    pub ambient: f64,
+    /// Projector defocus (Gaussian σ), projector pixels.
+    #[serde(default)]
+    pub blur: f64,
+}
+
+/// `[material.NAME]`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialSection {
+    /// Lambertian reflectance.
+    pub albedo: f64,
+    /// Blinn-Phong lobe strength.
+    #[serde(default)]
+    pub specular: f64,
+    /// Blinn-Phong exponent.
+    #[serde(default)]
+    pub shininess: f64,
+    /// Fraction of nearby direct light re-scattered.
+    #[serde(default)]
+    pub interreflection: f64,
+    /// Inter-reflection radius, mm.
+    #[serde(default)]
+    pub interreflection_radius: f64,
+    /// Albedo texture: "noise" (smooth random) or "checker"; none when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub texture: Option<String>,
+    /// Relative albedo modulation of the texture, 0..1.
+    #[serde(default)]
+    pub texture_amplitude: f64,
+    /// Texture period, mm.
+    #[serde(default = "twenty")]
+    pub texture_period: f64,
+}
+
+/// `[[object]]`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObjectSection {
+    /// plane, box, sphere, dome, cylinder or mesh.
+    pub shape: String,
+    /// Material name.
+    pub material: String,
+    /// Centre (box, sphere, cylinder: centroid; dome: centre of its base).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub center: Option<[f64; 3]>,
+    /// Box size.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub size: Option<[f64; 3]>,
+    /// Sphere, dome (base) or cylinder radius.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius: Option<f64>,
+    /// Dome or cylinder height.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub height: Option<f64>,
+    /// STL file, relative to the scene file.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub file: Option<String>,
+    /// Mesh translation.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position: Option<[f64; 3]>,
+    /// Mesh rotation, XYZ Euler degrees.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rotation_deg: Option<[f64; 3]>,
+    /// Mesh scale.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scale: Option<f64>,
+}
+
+/// `[render]`: simulator settings (optional).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RenderSection {
+    /// Sub-samples per pixel side (footprint anti-aliasing).
+    #[serde(default = "four")]
+    pub supersample: u32,
+    /// Noise seed.
+    #[serde(default = "one_u64")]
+    pub seed: u64,
+    /// Render row codes too.
+    #[serde(default = "yes")]
+    pub rows: bool,
+}
+
+impl Default for RenderSection {
+    fn default() -> Self {
+        RenderSection { supersample: 4, seed: 1, rows: true }
+    }
+}
+
+fn one() -> f64 {
+    1.0
+}
+fn one_u64() -> u64 {
+    1
+}
+fn twenty() -> f64 {
+    20.0
+}
+fn four() -> u32 {
+    4
+}
+fn yes() -> bool {
+    true
+}
+
+/// A scene file.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneFile {
+    /// The camera.
+    pub camera: SimCamera,
+    /// The projector.
+    pub projector: SimProjector,
+    /// Materials by name.
+    #[serde(default)]
+    pub material: BTreeMap<String, MaterialSection>,
+    /// Objects.
+    #[serde(default)]
+    pub object: Vec<ObjectSection>,
+    /// Simulator settings.
+    #[serde(default)]
+    pub render: RenderSection,
+}
+
+/// A material ready for shading.
+#[derive(Clone, Debug)]
+pub struct Material {
+    /// Name from the scene file.
+    pub name: String,
+    /// Lambertian reflectance.
+    pub albedo: f64,
+    /// Blinn-Phong lobe strength.
+    pub specular: f64,
+    /// Blinn-Phong exponent.
+    pub shininess: f64,
+    /// Inter-reflection fraction.
+    pub interreflection: f64,
+    /// Inter-reflection radius, mm.
+    pub interreflection_radius: f64,
+    /// Albedo texture.
+    pub texture: Texture,
+}
+
+/// A validated scene.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    /// Camera geometry.
+    pub camera: Pinhole,
+    /// Relative exposure.
+    pub exposure: f64,
+    /// Read noise σ, DN.
+    pub noise: f64,
+    /// Shot-noise variance per DN.
+    pub shot_noise: f64,
+    /// Projector geometry.
+    pub projector: Pinhole,
+    /// Ambient light fraction.
+    pub ambient: f64,
+    /// Projector blur σ, pixels.
+    pub blur: f64,
+    /// Materials.
+    pub materials: Vec<Material>,
+    /// Objects.
+    pub objects: Vec<Object>,
+    /// Simulator settings.
+    pub render: RenderSection,
+    /// The file as parsed (for writing sensor files).
+    pub file: SceneFile,
+}
+
+impl Scene {
+    /// Read and validate a scene file; mesh paths resolve against its directory.
+    pub fn load(path: &Path) -> Result<Scene> {
+        let file: SceneFile = read_toml(path)?;
+        Scene::from_file(file, path.parent().unwrap_or(Path::new(".")), &path.display().to_string())
+    }
+
+    /// Validate a parsed scene.
+    pub fn from_file(file: SceneFile, base: &Path, ctx: &str) -> Result<Scene> {
+        let c = &file.camera;
+        let cam_section = CameraSection { width: c.width, height: c.height, k: c.k, dist: c.dist, r: c.r, t: c.t };
+        let p = &file.projector;
+        let sensor = SensorFile {
+            camera: cam_section,
+            projector: crate::sensor::ProjectorSection { width: p.width, height: p.height, center: None, k: Some(p.k), dist: Some(p.dist), r: Some(p.r), t: Some(p.t) },
+            reference: None,
+            residual: None,
+            to_common: None,
+        };
+        let s = crate::sensor::Sensor::from_file(&sensor, base, ctx)?;
+        let projector = s.projector.clone().ok_or_else(|| Error::invalid(ctx, "projector", "incomplete"))?;
+        for (field, v, lo) in [("camera.exposure", c.exposure, 0.0), ("camera.noise", c.noise, 0.0), ("camera.shot_noise", c.shot_noise, 0.0), ("projector.ambient", p.ambient, 0.0), ("projector.blur", p.blur, 0.0)] {
+            if !v.is_finite() || v < lo {
+                return Err(Error::invalid(ctx, field, format!("{v} must be a finite number ≥ {lo}")));
+            }
+        }
+        if file.render.supersample == 0 || file.render.supersample > 16 {
+            return Err(Error::invalid(ctx, "render.supersample", "must be 1..=16"));
+        }
+        let mut materials = Vec::new();
+        let mut index = BTreeMap::new();
+        for (name, m) in &file.material {
+            let f = |field: &str| format!("material.{name}.{field}");
+            if !(0.0..=1.0).contains(&m.albedo) {
+                return Err(Error::invalid(ctx, f("albedo"), format!("{} is outside 0..1", m.albedo)));
+            }
+            for (field, v) in [("specular", m.specular), ("shininess", m.shininess), ("interreflection", m.interreflection), ("interreflection_radius", m.interreflection_radius), ("texture_amplitude", m.texture_amplitude)] {
+                if !v.is_finite() || v < 0.0 {
+                    return Err(Error::invalid(ctx, f(field), format!("{v} must be ≥ 0")));
+                }
+            }
+            if m.specular > 0.0 || m.interreflection > 0.0 {
+                tracing::warn!(material = %name, "specular and inter-reflection are not simulated yet; the material renders as Lambertian");
+            }
+            let texture = Texture::parse(m.texture.as_deref(), m.texture_amplitude, m.texture_period).map_err(|msg| Error::invalid(ctx, f("texture"), msg))?;
+            index.insert(name.clone(), materials.len());
+            materials.push(Material {
+                name: name.clone(),
+                albedo: m.albedo,
+                specular: m.specular,
+                shininess: m.shininess,
+                interreflection: m.interreflection,
+                interreflection_radius: m.interreflection_radius,
+                texture,
+            });
+        }
+        let mut objects = Vec::new();
+        for (i, o) in file.object.iter().enumerate() {
+            let f = |field: &str| format!("object[{i}].{field}");
+            let material = *index.get(&o.material).ok_or_else(|| Error::invalid(ctx, f("material"), format!("no [material.{}] in the scene", o.material)))?;
+            let need3 = |v: Option<[f64; 3]>, field: &str| v.filter(|a| a.iter().all(|x| x.is_finite())).ok_or_else(|| Error::invalid(ctx, f(field), format!("`{}` needs a finite {field}", o.shape)));
+            let need1 = |v: Option<f64>, field: &str| v.filter(|x| x.is_finite() && *x > 0.0).ok_or_else(|| Error::invalid(ctx, f(field), format!("`{}` needs a positive {field}", o.shape)));
+            let shape = match o.shape.as_str() {
+                "plane" => Shape::Plane,
+                "box" => {
+                    let size = need3(o.size, "size")?;
+                    if size.iter().any(|s| *s <= 0.0) {
+                        return Err(Error::invalid(ctx, f("size"), "must be positive"));
+                    }
+                    Shape::Box { center: Vec3::from(need3(o.center, "center")?), half: Vec3::from(size) / 2.0 }
+                }
+                "sphere" => Shape::Sphere { center: Vec3::from(need3(o.center, "center")?), radius: need1(o.radius, "radius")? },
+                "dome" => Shape::dome(Vec3::from(need3(o.center, "center")?), need1(o.radius, "radius")?, need1(o.height, "height")?),
+                "cylinder" => Shape::Cylinder { center: Vec3::from(need3(o.center, "center")?), radius: need1(o.radius, "radius")?, half_height: need1(o.height, "height")? / 2.0 },
+                "mesh" => {
+                    let file_name = o.file.as_ref().ok_or_else(|| Error::invalid(ctx, f("file"), "a mesh needs an STL file"))?;
+                    let mut mesh = TriangleMesh::load_stl(&base.join(file_name))?;
+                    let r: Mat3 = rotation_xyz_deg(o.rotation_deg.unwrap_or([0.0; 3]));
+                    mesh.transform(&r, o.scale.unwrap_or(1.0), &Vec3::from(o.position.unwrap_or([0.0; 3])));
+                    Shape::Mesh(Box::new(Bvh::new(mesh)))
+                }
+                other => return Err(Error::invalid(ctx, f("shape"), format!("unknown shape `{other}` (plane, box, sphere, dome, cylinder, mesh)"))),
+            };
+            objects.push(Object { shape, material });
+        }
+        if objects.is_empty() {
+            return Err(Error::invalid(ctx, "object", "the scene has no objects"));
+        }
+        Ok(Scene {
+            camera: s.camera,
+            exposure: c.exposure,
+            noise: c.noise,
+            shot_noise: c.shot_noise,
+            projector,
+            ambient: p.ambient,
+            blur: p.blur,
+            materials,
+            objects,
+            render: file.render.clone(),
+            file,
+        })
+    }
+
+    /// The same cell with only its reference plane (z = 0): the scene's plane objects, or a
+    /// diffuse plane of albedo 0.7 if it has none.
+    pub fn reference(&self) -> Scene {
+        let mut s = self.clone();
+        s.objects.retain(|o| matches!(o.shape, Shape::Plane));
+        if s.objects.is_empty() {
+            s.materials.push(Material { name: "reference_plane".into(), albedo: 0.7, specular: 0.0, shininess: 0.0, interreflection: 0.0, interreflection_radius: 0.0, texture: Texture::None });
+            s.objects.push(Object { shape: Shape::Plane, material: s.materials.len() - 1 });
+        }
+        s
+    }
+
+    /// Nearest hit along `o + t d`, `t` in `(t_min, t_max)`: (t, outward unit normal, object).
+    pub fn intersect(&self, o: &Vec3, d: &Vec3, t_min: f64, t_max: f64) -> Option<(f64, Vec3, usize)> {
+        let mut best: Option<(f64, Vec3, usize)> = None;
+        let mut limit = t_max;
+        for (i, obj) in self.objects.iter().enumerate() {
+            if let Some((t, n)) = obj.shape.intersect(o, d, t_min, limit) {
+                limit = t;
+                best = Some((t, n, i));
+            }
+        }
+        best
+    }
+
+    /// Distortion-free check that the scene's camera is usable.
+    pub fn camera_distortion(&self) -> Distortion {
+        self.camera.dist
+    }
+}

@@ -46,12 +46,14 @@ impl<T: Sample> Signal<'_, T> {
 }
 
 /// One located boundary on a line: between pixels `gap` and `gap + 1`, at position `x`, for the
-/// boundary before code cell `boundary`.
+/// boundary before code cell `boundary`. Consecutive edges of one `chain` step through adjacent
+/// boundaries in one direction with no break (invalid pixel, discontinuity) between them.
 #[derive(Clone, Copy, Debug)]
 struct Edge {
     gap: u32,
     x: f32,
     boundary: u32,
+    chain: u32,
 }
 
 /// Geometry of one camera line through the row-major image.
@@ -66,10 +68,13 @@ struct Code {
     bits: u32,
     step: f32,
     max_jump: u32,
+    window: usize,
+    extrapolate: bool,
+    cell_tolerance: f32,
 }
 
 /// Continuous projector coordinate per pixel (NaN where invalid) and a quality factor (1 where
-/// interpolated between two edges, 0.5 where extrapolated from one, 0 where invalid).
+/// interpolated between edges, 0.5 where extrapolated from one side, 0 where invalid).
 #[allow(clippy::too_many_arguments)]
 pub(super) fn subpixel<T: Sample>(
     w: usize,
@@ -79,9 +84,16 @@ pub(super) fn subpixel<T: Sample>(
     dir: ScanDirection,
     bits: u32,
     step: u32,
-    max_jump: u32,
+    params: &super::DecodeParams,
 ) -> (Vec<f32>, Vec<f32>) {
-    let code = Code { bits, step: step as f32, max_jump };
+    let code = Code {
+        bits,
+        step: step as f32,
+        max_jump: params.max_jump,
+        window: params.edge_window.max(1),
+        extrapolate: params.extrapolate,
+        cell_tolerance: params.cell_tolerance,
+    };
     let mut coord = vec![f32::NAN; w * h];
     let mut quality = vec![0f32; w * h];
     match dir {
@@ -139,68 +151,124 @@ fn process_line<T: Sample>(
         }
         let e = n;
         n += 1;
-        // Edges of the gaps just before a and just after e that bound cell c.
         while e_idx < edges.len() && (edges[e_idx].gap as usize) + 1 < a {
             e_idx += 1;
         }
         let c = c as u32;
         let bounds = |edge: &Edge| edge.boundary == c || edge.boundary == c + 1;
-        let left = (a > 0)
-            .then(|| edges[e_idx..].iter().take_while(|ed| ed.gap as usize == a - 1).position(bounds))
-            .flatten()
-            .map(|k| e_idx + k);
+        // The edge of the gap before `a` that bounds cell c (the last such), and the one after `e`.
+        let left = if a > 0 {
+            let k = edges[e_idx..].iter().take_while(|ed| ed.gap as usize == a - 1).count();
+            (e_idx..e_idx + k).rev().find(|&j| bounds(&edges[j]))
+        } else {
+            None
+        };
         let mut r_idx = e_idx;
         while r_idx < edges.len() && (edges[r_idx].gap as usize) < e {
             r_idx += 1;
         }
         let right = edges[r_idx..].iter().take_while(|ed| ed.gap as usize == e).position(bounds).map(|k| r_idx + k);
-        let pos = |ed: &Edge| code.step * ed.boundary as f32 - 0.5;
         let (lo, hi) = (code.step * c as f32 - 0.5, code.step * (c + 1) as f32 - 0.5);
-        match (left, right) {
-            (Some(l), Some(r)) if edges[l].boundary != edges[r].boundary => {
-                let (xl, pl, xr, pr) = (edges[l].x, pos(&edges[l]), edges[r].x, pos(&edges[r]));
-                let span = xr - xl;
-                for m in a..=e {
-                    out[m] = if span > 1e-6 { pl + (m as f32 - xl) * (pr - pl) / span } else { 0.5 * (pl + pr) };
-                    quality[m] = 1.0;
-                }
+        let (first, last, q) = match (left, right) {
+            (Some(l), Some(r)) if edges[l].chain == edges[r].chain && edges[l].boundary != edges[r].boundary => {
+                (widen_down(edges, l, code.window - 1), widen_up(edges, r, code.window - 1), 1.0)
             }
-            (Some(k), None) | (None, Some(k)) | (Some(k), Some(_)) => {
-                // One usable edge: extrapolate with the slope of the neighbouring cell's edges.
-                let neighbour = if left == Some(k) { k.checked_sub(1) } else { Some(k + 1) }
-                    .and_then(|j| edges.get(j))
-                    .filter(|o| o.boundary.abs_diff(edges[k].boundary) == 1 && (o.x - edges[k].x).abs() > 1e-3);
-                if let Some(o) = neighbour {
-                    let slope = (pos(&edges[k]) - pos(o)) / (edges[k].x - o.x);
-                    for m in a..=e {
-                        let v = pos(&edges[k]) + (m as f32 - edges[k].x) * slope;
-                        if v >= lo - 0.25 * code.step && v <= hi + 0.25 * code.step {
-                            out[m] = v.clamp(lo, hi);
-                            quality[m] = 0.5;
-                        }
-                    }
-                }
+            (Some(l), _) => (widen_down(edges, l, code.window.max(2) - 1), l, 0.5),
+            (None, Some(r)) => (r, widen_up(edges, r, code.window.max(2) - 1), 0.5),
+            (None, None) => continue,
+        };
+        if last <= first {
+            continue;
+        }
+        let Some((alpha, beta)) = fit_line(&edges[first..=last], code.step) else { continue };
+        if q < 1.0 && !code.extrapolate {
+            continue;
+        }
+        // A fitted value well outside the pixel's own code cell means the edges and the code
+        // disagree (a mixed pixel): reject rather than clamp.
+        let tol = code.cell_tolerance * code.step;
+        for m in a..=e {
+            let v = (m as f32 - alpha) / beta;
+            if v >= lo - tol && v <= hi + tol {
+                out[m] = v.clamp(lo, hi);
+                quality[m] = q;
             }
-            (None, None) => {}
         }
     }
 }
 
-/// Locate every sub-pixel boundary along the line, in order of the gap it lies in.
+/// Index of the edge up to `k` edges before `i` in the same chain.
+fn widen_down(edges: &[Edge], i: usize, k: usize) -> usize {
+    let mut j = i;
+    while j > 0 && i - j < k && edges[j - 1].chain == edges[i].chain {
+        j -= 1;
+    }
+    j
+}
+
+/// Index of the edge up to `k` edges after `i` in the same chain.
+fn widen_up(edges: &[Edge], i: usize, k: usize) -> usize {
+    let mut j = i;
+    while j + 1 < edges.len() && j - i < k && edges[j + 1].chain == edges[i].chain {
+        j += 1;
+    }
+    j
+}
+
+/// Least-squares line x = α + β P through the edges (camera position against projector
+/// coordinate P = step·boundary − 0.5; the noise is in x). `None` when degenerate.
+fn fit_line(edges: &[Edge], step: f32) -> Option<(f32, f32)> {
+    let n = edges.len() as f64;
+    let p0 = f64::from(edges[0].boundary);
+    let (mut sp, mut sx, mut spp, mut spx) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    for ed in edges {
+        let p = f64::from(ed.boundary) - p0;
+        let x = f64::from(ed.x);
+        sp += p;
+        sx += x;
+        spp += p * p;
+        spx += p * x;
+    }
+    let den = n * spp - sp * sp;
+    if den.abs() < 1e-12 {
+        return None;
+    }
+    let b = (n * spx - sp * sx) / den; // camera pixels per code cell
+    let a = (sx - b * sp) / n; // x at boundary p0
+    if b.abs() < 1e-6 {
+        return None;
+    }
+    // x = a + b (B − p0) and P = step·B − 0.5  ⇒  x = α + β P.
+    let beta = b / f64::from(step);
+    let alpha = a - b * p0 + 0.5 * beta;
+    Some((alpha as f32, beta as f32))
+}
+
+/// Locate every sub-pixel boundary along the line, in order of the gap it lies in, and group
+/// them into chains.
 fn find_edges<T: Sample>(line: Line, codes: &[i32], signal: &Signal<'_, T>, code: &Code, edges: &mut Vec<Edge>) {
     edges.clear();
+    let mut chain = 0u32;
+    let mut broken = true;
+    let mut direction = 0i64;
     for n in 0..line.len.saturating_sub(1) {
         let i0 = line.start + n * line.stride;
         let i1 = i0 + line.stride;
         let (c0, c1) = (codes[i0], codes[i1]);
-        if c0 < 0 || c1 < 0 || c0 == c1 {
+        if c0 < 0 || c1 < 0 {
+            broken = true;
+            continue;
+        }
+        if c0 == c1 {
             continue;
         }
         let (lo, hi) = (c0.min(c1) as u32, c0.max(c1) as u32);
         if hi - lo > code.max_jump {
+            broken = true;
             continue;
         }
         let differs = binary_to_gray(c0 as u32) ^ binary_to_gray(c1 as u32);
+        let increasing = c1 > c0;
         let first = edges.len();
         for b in lo + 1..=hi {
             let k = flipped_bit(b);
@@ -215,13 +283,16 @@ fn find_edges<T: Sample>(line: Line, codes: &[i32], signal: &Signal<'_, T>, code
             }
             let t = s0 / den;
             if (0.0..=1.0).contains(&t) {
-                edges.push(Edge { gap: n as u32, x: n as f32 + t, boundary: b });
+                edges.push(Edge { gap: n as u32, x: n as f32 + t, boundary: b, chain });
             }
         }
-        // Several boundaries in one gap must come out in the order of their codes.
-        if edges.len() - first > 1 {
-            let run = &mut edges[first..];
-            let increasing = c1 > c0;
+        if edges.len() == first {
+            broken = true;
+            continue;
+        }
+        let run = &mut edges[first..];
+        if run.len() > 1 {
+            // Several boundaries in one gap come out in the order of their codes, monotonic in x.
             run.sort_by(|p, q| if increasing { p.boundary.cmp(&q.boundary) } else { q.boundary.cmp(&p.boundary) });
             for i in 1..run.len() {
                 if run[i].x < run[i - 1].x {
@@ -230,6 +301,19 @@ fn find_edges<T: Sample>(line: Line, codes: &[i32], signal: &Signal<'_, T>, code
                     run[i - 1].x = mid;
                 }
             }
+        }
+        let dir = if increasing { 1 } else { -1 };
+        let continues = !broken && first > 0 && dir == direction && {
+            let prev = edges[first - 1].boundary as i64;
+            edges[first].boundary as i64 - prev == dir
+        };
+        if !continues {
+            chain += 1;
+        }
+        direction = dir;
+        broken = false;
+        for ed in &mut edges[first..] {
+            ed.chain = chain;
         }
     }
 }

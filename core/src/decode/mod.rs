@@ -37,11 +37,26 @@ pub struct DecodeParams {
     /// Largest code jump between neighbouring pixels still bridged by sub-pixel edges; larger
     /// jumps are depth discontinuities.
     pub max_jump: u32,
+    /// Edges used on each side of a pixel for its local line fit (1 = interpolate between the
+    /// two nearest edges; more averages decoding noise and the crossing bias on smooth surfaces).
+    pub edge_window: usize,
+    /// A pixel whose coordinate differs by more than this many code cells from both neighbours
+    /// across the scan direction is a mixed pixel at a depth edge and is rejected.
+    pub consistency_cells: f32,
+    /// Whether a pixel with a sub-pixel edge on one side only (next to a shadow, an invalid
+    /// pixel or a discontinuity) is extrapolated; such pixels are often mixed, so off by default.
+    pub extrapolate: bool,
+    /// How far (in code cells) a fitted coordinate may fall outside the pixel's own code cell
+    /// before the pixel is rejected as inconsistent.
+    pub cell_tolerance: f32,
+    /// Valid pixels within this many pixels of an invalid one, across the scan direction, are
+    /// dropped: the footprints of pixels on a depth edge or shadow border mix two surfaces.
+    pub edge_erosion: u32,
 }
 
 impl Default for DecodeParams {
     fn default() -> Self {
-        DecodeParams { contrast_threshold: 12.0, bit_threshold: 0.0, max_jump: 2 }
+        DecodeParams { contrast_threshold: 12.0, bit_threshold: 0.0, max_jump: 2, edge_window: 3, consistency_cells: 3.0, extrapolate: false, cell_tolerance: 0.25, edge_erosion: 1 }
     }
 }
 
@@ -219,7 +234,11 @@ fn decode_planes<T: Sample>(capture: &CaptureSet, planes: &Planes<'_, T>, params
         let codes = binarize::codes(w, h, planes.white, planes.black, &frames.0, frames.1.as_deref(), layout.cells(axis), thresholds);
         let dir = scan_direction(w, h, &codes);
         let signal = line_shift::Signal { white: planes.white, black: planes.black, pat: &frames.0, inv: frames.1.as_deref() };
-        let (coord, quality) = line_shift::subpixel(w, h, &codes, &signal, dir, layout.bits(axis), layout.step(axis), params.max_jump);
+        let (mut coord, quality) = line_shift::subpixel(w, h, &codes, &signal, dir, layout.bits(axis), layout.step(axis), params);
+        reject_inconsistent(w, h, &mut coord, dir, params.consistency_cells * layout.step(axis) as f32);
+        for _ in 0..params.edge_erosion {
+            erode(w, h, &mut coord, dir);
+        }
         let bin = if frames.1.is_some() { Binarization::Dual } else { Binarization::Threshold };
         (coord, quality, bin)
     };
@@ -235,6 +254,59 @@ fn decode_planes<T: Sample>(capture: &CaptureSet, planes: &Planes<'_, T>, params
     });
     tracing::debug!(valid = col.iter().filter(|v| v.is_finite()).count(), total = w * h, "decoded");
     Decoded { width: capture.width, height: capture.height, layout, col, row, confidence, binarization }
+}
+
+/// Reject pixels on a depth edge that runs along the scan direction: a pixel whose coordinate
+/// jumps by more than `tolerance` to a valid neighbour across the scan (or that has no valid
+/// neighbour there to agree with) mixes two surfaces. Jumps along the scan already break the
+/// edge chains of line shifting.
+fn reject_inconsistent(w: usize, h: usize, coord: &mut [f32], dir: ScanDirection, tolerance: f32) {
+    let (step, count) = match dir {
+        ScanDirection::AlongRows => (w, h),
+        ScanDirection::AlongColumns => (1, w),
+    };
+    let src = coord.to_vec();
+    coord.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for (x, v) in row.iter_mut().enumerate() {
+            if !v.is_finite() {
+                continue;
+            }
+            let i = y * w + x;
+            let pos = if step == w { y } else { x };
+            let neighbours = [(pos > 0).then(|| src[i - step]), (pos + 1 < count).then(|| src[i + step])];
+            let valid = neighbours.iter().flatten().filter(|n| n.is_finite());
+            let (mut agree, mut jump) = (false, false);
+            for n in valid {
+                if (n - *v).abs() <= tolerance {
+                    agree = true;
+                } else {
+                    jump = true;
+                }
+            }
+            if jump || !agree {
+                *v = f32::NAN;
+            }
+        }
+    });
+}
+
+/// Invalidate every valid pixel with an invalid neighbour across the scan direction (image
+/// borders do not count). Along the scan, line shifting already refuses one-sided pixels.
+fn erode(w: usize, h: usize, coord: &mut [f32], dir: ScanDirection) {
+    let src = coord.to_vec();
+    coord.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for (x, v) in row.iter_mut().enumerate() {
+            let i = y * w + x;
+            let bad = |j: usize| !src[j].is_finite();
+            let edge = match dir {
+                ScanDirection::AlongRows => (y > 0 && bad(i - w)) || (y + 1 < h && bad(i + w)),
+                ScanDirection::AlongColumns => (x > 0 && bad(i - 1)) || (x + 1 < w && bad(i + 1)),
+            };
+            if v.is_finite() && edge {
+                *v = f32::NAN;
+            }
+        }
+    });
 }
 
 /// Choose the camera direction that crosses the stripes of a code: the one along which the code

@@ -114,7 +114,7 @@ impl GrayImage {
         let res = match &self.pixels {
             Pixels::U8(v) => enc.write_image(v, self.width, self.height, image::ExtendedColorType::L8),
             Pixels::U16(v) => {
-                let bytes: Vec<u8> = v.iter().flat_map(|p| p.to_be_bytes()).collect();
+                let bytes: Vec<u8> = v.iter().flat_map(|p| p.to_ne_bytes()).collect();
                 enc.write_image(&bytes, self.width, self.height, image::ExtendedColorType::L16)
             }
         };

@@ -26,6 +26,7 @@ fn demo_scene_parallax_accuracy() {
     if let Ok(v) = std::env::var("RIS_CELLTOL") { params.cell_tolerance = v.parse().expect("tol"); }
     if std::env::var("RIS_EXTRAP").is_ok() { params.extrapolate = true; }
     if let Ok(v) = std::env::var("RIS_EROSION") { params.edge_erosion = v.parse().expect("erosion"); }
+    if let Ok(v) = std::env::var("RIS_POWER") { params.albedo_weight_power = v.parse().expect("power"); }
     let dec = decode(&capture, &params).expect("decode");
     let dec_ref = decode(&reference, &params).expect("decode ref");
     let rec = Reconstructor::parallax(&scene.camera, scene.projector.center(), &dec_ref).expect("model");

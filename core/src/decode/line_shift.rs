@@ -33,6 +33,13 @@ impl<T: Sample> Signal<'_, T> {
     /// Pattern minus inverse (or 2P − W − K) of bit `j` at pixel `i`, divided by the pixel's
     /// contrast so that albedo differences between neighbouring pixels do not move the edge.
     #[inline]
+    /// White − black at pixel `i` (at least 1).
+    #[inline]
+    fn contrast(&self, i: usize) -> f32 {
+        (self.white[i].to_i32() - self.black[i].to_i32()).max(1) as f32
+    }
+
+    #[inline]
     fn normalized(&self, j: usize, i: usize) -> f32 {
         let w = self.white[i].to_i32();
         let k = self.black[i].to_i32();
@@ -54,6 +61,9 @@ struct Edge {
     x: f32,
     boundary: u32,
     chain: u32,
+    /// Reliability in (0, 1]: (smaller / larger contrast of the two pixels)^power. A crossing
+    /// next to an albedo edge is biased, so it counts less in the line fit.
+    weight: f32,
 }
 
 /// Geometry of one camera line through the row-major image.
@@ -71,6 +81,7 @@ struct Code {
     window: usize,
     extrapolate: bool,
     cell_tolerance: f32,
+    albedo_power: i32,
 }
 
 /// Continuous projector coordinate per pixel (NaN where invalid) and a quality factor (1 where
@@ -93,6 +104,7 @@ pub(super) fn subpixel<T: Sample>(
         window: params.edge_window.max(1),
         extrapolate: params.extrapolate,
         cell_tolerance: params.cell_tolerance,
+        albedo_power: params.albedo_weight_power,
     };
     let mut coord = vec![f32::NAN; w * h];
     let mut quality = vec![0f32; w * h];
@@ -215,26 +227,27 @@ fn widen_up(edges: &[Edge], i: usize, k: usize) -> usize {
     j
 }
 
-/// Least-squares line x = α + β P through the edges (camera position against projector
+/// Weighted least-squares line x = α + β P through the edges (camera position against projector
 /// coordinate P = step·boundary − 0.5; the noise is in x). `None` when degenerate.
 fn fit_line(edges: &[Edge], step: f32) -> Option<(f32, f32)> {
-    let n = edges.len() as f64;
     let p0 = f64::from(edges[0].boundary);
-    let (mut sp, mut sx, mut spp, mut spx) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    let (mut sw, mut sp, mut sx, mut spp, mut spx) = (0.0f64, 0.0f64, 0.0f64, 0.0f64, 0.0f64);
     for ed in edges {
+        let wgt = f64::from(ed.weight);
         let p = f64::from(ed.boundary) - p0;
         let x = f64::from(ed.x);
-        sp += p;
-        sx += x;
-        spp += p * p;
-        spx += p * x;
+        sw += wgt;
+        sp += wgt * p;
+        sx += wgt * x;
+        spp += wgt * p * p;
+        spx += wgt * p * x;
     }
-    let den = n * spp - sp * sp;
-    if den.abs() < 1e-12 {
+    let den = sw * spp - sp * sp;
+    if den.abs() < 1e-12 * sw * sw {
         return None;
     }
-    let b = (n * spx - sp * sx) / den; // camera pixels per code cell
-    let a = (sx - b * sp) / n; // x at boundary p0
+    let b = (sw * spx - sp * sx) / den; // camera pixels per code cell
+    let a = (sx - b * sp) / sw; // x at boundary p0
     if b.abs() < 1e-6 {
         return None;
     }
@@ -269,6 +282,8 @@ fn find_edges<T: Sample>(line: Line, codes: &[i32], signal: &Signal<'_, T>, code
         }
         let differs = binary_to_gray(c0 as u32) ^ binary_to_gray(c1 as u32);
         let increasing = c1 > c0;
+        let (k0, k1) = (signal.contrast(i0), signal.contrast(i1));
+        let weight = (k0.min(k1) / k0.max(k1)).powi(code.albedo_power).max(1e-4);
         let first = edges.len();
         for b in lo + 1..=hi {
             let k = flipped_bit(b);
@@ -283,7 +298,7 @@ fn find_edges<T: Sample>(line: Line, codes: &[i32], signal: &Signal<'_, T>, code
             }
             let t = s0 / den;
             if (0.0..=1.0).contains(&t) {
-                edges.push(Edge { gap: n as u32, x: n as f32 + t, boundary: b, chain });
+                edges.push(Edge { gap: n as u32, x: n as f32 + t, boundary: b, chain, weight });
             }
         }
         if edges.len() == first {

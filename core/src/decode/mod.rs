@@ -52,11 +52,18 @@ pub struct DecodeParams {
     /// Valid pixels within this many pixels of an invalid one, across the scan direction, are
     /// dropped: the footprints of pixels on a depth edge or shadow border mix two surfaces.
     pub edge_erosion: u32,
+    /// Average each coordinate with its two neighbours across the scan direction ([1, 2, 1]),
+    /// where both are valid and consistent: line shifting on neighbouring camera lines gives
+    /// independent estimates, and a symmetric kernel leaves linear trends (slopes) untouched.
+    pub cross_smoothing: bool,
+    /// Power of the contrast ratio of an edge's two pixels used as its weight in the line fit
+    /// (0 = all edges equal). Crossings beside albedo edges are biased; this discounts them.
+    pub albedo_weight_power: i32,
 }
 
 impl Default for DecodeParams {
     fn default() -> Self {
-        DecodeParams { contrast_threshold: 12.0, bit_threshold: 0.0, max_jump: 2, edge_window: 3, consistency_cells: 3.0, extrapolate: false, cell_tolerance: 0.25, edge_erosion: 1 }
+        DecodeParams { contrast_threshold: 12.0, bit_threshold: 0.0, max_jump: 2, edge_window: 3, consistency_cells: 3.0, extrapolate: false, cell_tolerance: 0.25, edge_erosion: 1, cross_smoothing: true, albedo_weight_power: 4 }
     }
 }
 
@@ -239,6 +246,9 @@ fn decode_planes<T: Sample>(capture: &CaptureSet, planes: &Planes<'_, T>, params
         for _ in 0..params.edge_erosion {
             erode(w, h, &mut coord, dir);
         }
+        if params.cross_smoothing {
+            smooth_across(w, h, &mut coord, dir, params.consistency_cells * layout.step(axis) as f32);
+        }
         let bin = if frames.1.is_some() { Binarization::Dual } else { Binarization::Threshold };
         (coord, quality, bin)
     };
@@ -304,6 +314,29 @@ fn erode(w: usize, h: usize, coord: &mut [f32], dir: ScanDirection) {
             };
             if v.is_finite() && edge {
                 *v = f32::NAN;
+            }
+        }
+    });
+}
+
+/// [1, 2, 1] average across the scan direction where both neighbours are valid and within
+/// `tolerance`; elsewhere the value is kept as is (no one-sided averaging, which would bias).
+fn smooth_across(w: usize, h: usize, coord: &mut [f32], dir: ScanDirection, tolerance: f32) {
+    let (step, count) = match dir {
+        ScanDirection::AlongRows => (w, h),
+        ScanDirection::AlongColumns => (1, w),
+    };
+    let src = coord.to_vec();
+    coord.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for (x, v) in row.iter_mut().enumerate() {
+            let pos = if step == w { y } else { x };
+            if !v.is_finite() || pos == 0 || pos + 1 >= count {
+                continue;
+            }
+            let i = y * w + x;
+            let (a, b) = (src[i - step], src[i + step]);
+            if (a - *v).abs() <= tolerance && (b - *v).abs() <= tolerance {
+                *v = 0.25 * (a + b) + 0.5 * *v;
             }
         }
     });

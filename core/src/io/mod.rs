@@ -1,6 +1,7 @@
 //! File plumbing shared by every writer: atomic writes, NumPy arrays, TOML reading.
 
 pub mod npy;
+pub mod opencv;
 
 use std::path::Path;
 

@@ -124,6 +124,13 @@ impl Bvh {
 fn slab(n: &Node, o: &Vec3, inv: &[f64; 3], t_min: f64, t_max: f64) -> bool {
     let (mut lo, mut hi) = (t_min, t_max);
     for k in 0..3 {
+        if inv[k].is_infinite() {
+            // Ray parallel to this slab: inside it or never (avoids 0 · ∞ = NaN on a face).
+            if o[k] < n.min[k] || o[k] > n.max[k] {
+                return false;
+            }
+            continue;
+        }
         let t1 = (n.min[k] - o[k]) * inv[k];
         let t2 = (n.max[k] - o[k]) * inv[k];
         lo = lo.max(t1.min(t2));

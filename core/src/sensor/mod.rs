@@ -141,7 +141,13 @@ impl Reconstructor {
                         if !col.is_finite() {
                             continue;
                         }
-                        let r = rows.map(|r| r[i]).filter(|r| r.is_finite()).map(f64::from);
+                        // With row codes, triangulate ray against ray (well conditioned for any
+                        // baseline direction); the column plane serves column-only captures.
+                        let r = match rows {
+                            Some(r) if r[i].is_finite() => Some(f64::from(r[i])),
+                            Some(_) => continue,
+                            None => None,
+                        };
                         let (x, y) = self.rays.get(i);
                         if let Some(p) = c.point(x, y, f64::from(col), r) {
                             *out = [p.x as f32, p.y as f32, p.z as f32];

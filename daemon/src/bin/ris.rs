@@ -1,1 +1,149 @@
-fn main(){}
+//! `ris`: the offline command-line tool of RIS (patterns, decoding, reconstruction, simulation).
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand, ValueEnum};
+use ris_core::decode::DecodeParams;
+use ris_core::pattern::CodeLayout;
+use ris_core::sensor::ModelChoice;
+use ris_daemon::commands;
+
+#[derive(Parser)]
+#[command(name = "ris", version, about = "RIS structured-light tools: patterns, decode, reconstruct, simulate")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(clap::Args)]
+struct DecodeArgs {
+    /// Minimum white − black contrast (8-bit grey levels) for a valid pixel.
+    #[arg(long, default_value_t = DecodeParams::default().contrast_threshold)]
+    contrast_threshold: f32,
+    /// Margin |pattern − inverse| below which a bit is undecidable (0 = decide by sign).
+    #[arg(long, default_value_t = DecodeParams::default().bit_threshold)]
+    bit_threshold: f32,
+    /// Edges used on each side of a pixel for its sub-pixel line fit.
+    #[arg(long, default_value_t = DecodeParams::default().edge_window)]
+    edge_window: usize,
+    /// Pixels removed next to invalid pixels across the scan direction (mixed footprints).
+    #[arg(long, default_value_t = DecodeParams::default().edge_erosion)]
+    edge_erosion: u32,
+    /// Power of the contrast ratio weighting edges beside albedo changes (0 = off).
+    #[arg(long, default_value_t = DecodeParams::default().albedo_weight_power)]
+    albedo_weight_power: i32,
+}
+
+impl DecodeArgs {
+    fn params(&self) -> DecodeParams {
+        DecodeParams { contrast_threshold: self.contrast_threshold, bit_threshold: self.bit_threshold, edge_window: self.edge_window, edge_erosion: self.edge_erosion, albedo_weight_power: self.albedo_weight_power, ..DecodeParams::default() }
+    }
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum Model {
+    Auto,
+    Parallax,
+    Classical,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Write the multi-shot Gray-code patterns for a projector as PNG files.
+    Patterns {
+        /// Projector size, e.g. 1024x768.
+        #[arg(long)]
+        projector: String,
+        /// Projector pixels per column code cell.
+        #[arg(long, default_value_t = 1)]
+        column_step: u32,
+        /// Projector pixels per row code cell.
+        #[arg(long, default_value_t = 1)]
+        row_step: u32,
+        /// Leave out the row codes.
+        #[arg(long)]
+        no_rows: bool,
+        /// Add the flat levels of the photo response (flat_000 … flat_250).
+        #[arg(long)]
+        flats: bool,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Decode a capture set to sub-pixel projector coordinates (col.npy, row.npy, confidence.npy).
+    Decode {
+        /// Capture directory (with capture.toml).
+        capture: PathBuf,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+        #[command(flatten)]
+        decode: DecodeArgs,
+    },
+    /// Reconstruct a capture set into a binary PLY point cloud in the sensor world frame.
+    Reconstruct {
+        /// Sensor file (TOML).
+        #[arg(long)]
+        sensor: PathBuf,
+        /// Capture directory.
+        capture: PathBuf,
+        /// Output PLY file.
+        #[arg(long)]
+        out: PathBuf,
+        /// Sensor model (auto: parallax when the sensor has a reference).
+        #[arg(long, value_enum, default_value_t = Model::Auto)]
+        model: Model,
+        #[command(flatten)]
+        decode: DecodeArgs,
+    },
+    /// Render a simulated scene: capture set, reference capture, sensor file and ground truth.
+    Simulate {
+        /// Scene file (TOML, SPEC §11).
+        #[arg(long)]
+        scene: PathBuf,
+        /// Output directory (must not exist or be empty).
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// End-to-end demo: simulate the built-in scene, reconstruct it, write the cloud and accuracy.
+    Demo {
+        /// Output directory.
+        #[arg(long, default_value = "out/demo")]
+        out: PathBuf,
+        /// Use this scene instead of the built-in one.
+        #[arg(long)]
+        scene: Option<PathBuf>,
+    },
+}
+
+fn main() -> Result<()> {
+    ris_daemon::logging::init("info");
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Patterns { projector, column_step, row_step, no_rows, flats, out } => {
+            let (width, height) = commands::parse_size(&projector)?;
+            anyhow::ensure!(column_step >= 1 && row_step >= 1, "--column-step and --row-step must be ≥ 1");
+            let n = commands::patterns::run(CodeLayout { width, height, column_step, row_step }, !no_rows, flats, &out)?;
+            println!("wrote {n} patterns for a {width}x{height} projector to {}", out.display());
+        }
+        Command::Decode { capture, out, decode } => {
+            commands::decode::run(&capture, &decode.params(), &out)?;
+        }
+        Command::Reconstruct { sensor, capture, out, model, decode } => {
+            let model = match model {
+                Model::Auto => ModelChoice::Auto,
+                Model::Parallax => ModelChoice::Parallax,
+                Model::Classical => ModelChoice::Classical,
+            };
+            commands::reconstruct::run(&sensor, &capture, model, &decode.params(), &out)?;
+        }
+        Command::Simulate { scene, out } => {
+            commands::simulate::run(&scene, &out)?;
+        }
+        Command::Demo { out, scene } => {
+            commands::demo::run(scene.as_deref(), &out)?;
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,31 @@
+//! One module per `ris` sub-command.
+
+pub mod decode;
+pub mod demo;
+pub mod patterns;
+pub mod reconstruct;
+pub mod simulate;
+
+use anyhow::{bail, Context, Result};
+
+/// Parse `WIDTHxHEIGHT` (e.g. `1024x768`).
+pub fn parse_size(s: &str) -> Result<(u32, u32)> {
+    let (w, h) = s.split_once(['x', 'X']).with_context(|| format!("`{s}` is not a size like 1024x768"))?;
+    let w: u32 = w.trim().parse().with_context(|| format!("width in `{s}` is not a number"))?;
+    let h: u32 = h.trim().parse().with_context(|| format!("height in `{s}` is not a number"))?;
+    if w == 0 || h == 0 || w > 65536 || h > 65536 {
+        bail!("size `{s}` is out of range (1..=65536 per side)");
+    }
+    Ok((w, h))
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn sizes() {
+        assert_eq!(super::parse_size("1024x768").expect("ok"), (1024, 768));
+        assert!(super::parse_size("1024").is_err());
+        assert!(super::parse_size("0x5").is_err());
+        assert!(super::parse_size("ax5").is_err());
+    }
+}

@@ -1,0 +1,24 @@
+//! `ris patterns`: write every pattern of a multi-shot sequence as 8-bit PNG.
+
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use rayon::prelude::*;
+use ris_core::image::GrayImage;
+use ris_core::pattern::{CodeLayout, Pattern};
+
+/// Write the sequence (and optionally the flats of the photo response) to `out`; returns the
+/// number of files written.
+pub fn run(layout: CodeLayout, with_rows: bool, flats: bool, out: &Path) -> Result<usize> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let mut patterns = layout.sequence(with_rows);
+    if flats {
+        patterns.extend([0u8, 50, 100, 150, 200, 250].map(Pattern::Flat));
+    }
+    patterns.par_iter().try_for_each(|p| {
+        let path = out.join(format!("{}.png", p.name()));
+        GrayImage::from_u8(layout.width, layout.height, layout.render(*p)).save_png(&path).with_context(|| format!("writing {}", path.display()))
+    })?;
+    tracing::info!(count = patterns.len(), dir = %out.display(), "patterns written");
+    Ok(patterns.len())
+}

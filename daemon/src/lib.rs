@@ -1,0 +1,8 @@
+//! The RIS daemon crate: the `ris` command-line tool now, the `risd` cell daemon later.
+//!
+//! Binaries under `src/bin/` only parse arguments and set up logging; every command's logic is a
+//! function in [`commands`] so tests can call it directly.
+
+pub mod commands;
+pub mod logging;
+pub mod progress;

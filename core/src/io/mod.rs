@@ -39,7 +39,7 @@ pub fn read_toml<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
 
 /// Serialize `value` as TOML and write it atomically.
 pub fn write_toml<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
-    let text = toml::to_string_pretty(value)
+    let text = toml::to_string(value)
         .map_err(|e| Error::Toml { path: path.to_path_buf(), message: e.to_string() })?;
     write_atomic(path, text.as_bytes())
 }

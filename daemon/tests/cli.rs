@@ -1,0 +1,179 @@
+//! End-to-end tests of the `ris` binary: the commands a user runs, and their errors on bad input.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn ris(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_ris")).args(args).env("RIS_LOG", "warn").output().expect("run ris")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// A small scene (160x120 camera) so the CLI tests stay fast.
+const SCENE: &str = r#"
+[camera]
+width = 160
+height = 120
+k = [[190.0, 0.0, 79.5], [0.0, 190.0, 59.5], [0.0, 0.0, 1.0]]
+r = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]
+t = [0.0, 0.0, 1600.0]
+noise = 1.0
+[projector]
+width = 128
+height = 96
+k = [[150.0, 0.0, 63.5], [0.0, 150.0, 47.5], [0.0, 0.0, 1.0]]
+r = [[0.954479978035, 0.0, -0.298274993136], [0.0, -1.0, 0.0], [-0.298274993136, 0.0, -0.954479978035]]
+t = [0.0, 0.0, 1676.305461424]
+ambient = 0.02
+blur = 0.5
+[material.white]
+albedo = 0.7
+[[object]]
+shape = "plane"
+material = "white"
+[[object]]
+shape = "box"
+center = [0.0, 0.0, 50.0]
+size = [400.0, 300.0, 100.0]
+material = "white"
+"#;
+
+fn simulated(dir: &Path) -> PathBuf {
+    let scene = dir.join("scene.toml");
+    std::fs::write(&scene, SCENE).expect("write scene");
+    let out = dir.join("sim");
+    let o = ris(&["simulate", "--scene", scene.to_str().expect("utf8"), "--out", out.to_str().expect("utf8")]);
+    assert!(o.status.success(), "simulate failed: {}", stderr(&o));
+    out
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("utf8 path")
+}
+
+#[test]
+fn patterns_writes_the_full_sequence() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("p");
+    let o = ris(&["patterns", "--projector", "64x32", "--flats", "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let n = std::fs::read_dir(&out).expect("dir").count();
+    assert_eq!(n, 2 + 2 * (6 + 5) + 6, "white, black, 6 column and 5 row bits with inverses, 6 flats");
+    let img = ris_core::image::GrayImage::load(&out.join("gray_col_05.png")).expect("png");
+    assert_eq!((img.width, img.height), (64, 32));
+    let o = ris(&["patterns", "--projector", "64by32", "--out", s(&out)]);
+    assert!(!o.status.success() && stderr(&o).contains("64by32"));
+}
+
+#[test]
+fn simulate_decode_reconstruct_round_trip() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let sim = simulated(dir.path());
+    let dec = dir.path().join("dec");
+    let o = ris(&["decode", s(&sim.join("capture")), "--out", s(&dec)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for f in ["col.npy", "row.npy", "confidence.npy", "decoded.png"] {
+        assert!(dec.join(f).is_file(), "{f} missing");
+    }
+    let cloud = dir.path().join("cloud.ply");
+    let o = ris(&["reconstruct", "--sensor", s(&sim.join("sensor.toml")), s(&sim.join("capture")), "--out", s(&cloud)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let pc = ris_core::cloud::PointCloud::read_ply(&cloud).expect("ply");
+    assert!(pc.len() > 10_000, "{} points", pc.len());
+    // The box top (z = 100) and the plane (z = 0) are both there, nothing else.
+    let top = pc.points.iter().filter(|p| (p[2] - 100.0).abs() < 1.0).count();
+    let floor = pc.points.iter().filter(|p| p[2].abs() < 1.0).count();
+    assert!(top > 1000 && floor > 10_000, "top {top}, floor {floor}");
+    assert!(top + floor >= pc.len() * 99 / 100, "stray points");
+    // Both models from the same sensor file agree.
+    let cloud2 = dir.path().join("classical.ply");
+    let o = ris(&["reconstruct", "--model", "classical", "--sensor", s(&sim.join("sensor.toml")), s(&sim.join("capture")), "--out", s(&cloud2)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let pc2 = ris_core::cloud::PointCloud::read_ply(&cloud2).expect("ply");
+    let on_surfaces = pc2.points.iter().filter(|p| (p[2] - 100.0).abs() < 1.0 || p[2].abs() < 1.0).count();
+    assert!(pc2.len() > pc.len() * 9 / 10, "classical {} vs parallax {} points", pc2.len(), pc.len());
+    assert!(on_surfaces >= pc2.len() * 99 / 100, "classical stray points");
+}
+
+/// Run `args`, expect failure with every `needles` in stderr and `out` not created.
+fn fails(args: &[&str], needles: &[&str], out: &Path) {
+    let o = ris(args);
+    let err = stderr(&o);
+    assert!(!o.status.success(), "expected failure for {args:?}");
+    for n in needles {
+        assert!(err.contains(n), "stderr should mention `{n}`: {err}");
+    }
+    assert!(!err.contains("panicked"), "panic: {err}");
+    assert!(!out.exists(), "{} was written despite the error", out.display());
+}
+
+#[test]
+fn bad_input_gives_clear_errors_and_no_output() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let sim = simulated(dir.path());
+    let cap = sim.join("capture");
+    let sensor = sim.join("sensor.toml");
+    let out = dir.path().join("never.ply");
+    let dec_out = dir.path().join("never_dir");
+
+    // Missing frame.
+    let bad = dir.path().join("missing");
+    copy_dir(&cap, &bad);
+    std::fs::remove_file(bad.join("gray_col_03.png")).expect("rm");
+    fails(&["decode", s(&bad), "--out", s(&dec_out)], &["gray_col_03.png", "frames.gray_col_03"], &dec_out);
+    fails(&["reconstruct", "--sensor", s(&sensor), s(&bad), "--out", s(&out)], &["gray_col_03.png"], &out);
+
+    // Unreadable frame.
+    let bad = dir.path().join("unreadable");
+    copy_dir(&cap, &bad);
+    std::fs::write(bad.join("white.png"), b"garbage").expect("write");
+    fails(&["decode", s(&bad), "--out", s(&dec_out)], &["white.png"], &dec_out);
+
+    // Size mismatch.
+    let bad = dir.path().join("size");
+    copy_dir(&cap, &bad);
+    ris_core::image::GrayImage::from_u8(10, 10, vec![0; 100]).save_png(&bad.join("black.png")).expect("png");
+    fails(&["decode", s(&bad), "--out", s(&dec_out)], &["black.png", "10x10", "160x120"], &dec_out);
+
+    // Unknown pattern in [frames].
+    let bad = dir.path().join("unknown");
+    copy_dir(&cap, &bad);
+    append(&bad.join("capture.toml"), "\n[frames]\nstripes_07 = \"white.png\"\n");
+    fails(&["decode", s(&bad), "--out", s(&dec_out)], &["frames.stripes_07", "capture.toml"], &dec_out);
+
+    // Malformed TOML.
+    let bad = dir.path().join("malformed");
+    copy_dir(&cap, &bad);
+    append(&bad.join("capture.toml"), "\n[camera\n");
+    fails(&["decode", s(&bad), "--out", s(&dec_out)], &["capture.toml"], &dec_out);
+
+    // NaN in a matrix of the sensor file.
+    let text = std::fs::read_to_string(&sensor).expect("sensor");
+    let nan_sensor = sim.join("nan_sensor.toml");
+    assert!(text.contains("k = [[190.0,"), "sensor file layout changed: {text}");
+    std::fs::write(&nan_sensor, text.replacen("k = [[190.0,", "k = [[nan,", 1)).expect("write");
+    let o = ris(&["reconstruct", "--sensor", s(&nan_sensor), s(&cap), "--out", s(&out)]);
+    assert!(!o.status.success());
+    let err = stderr(&o);
+    assert!(err.contains("nan_sensor.toml") && err.contains("camera.k[0]") && err.contains("NaN"), "{err}");
+    assert!(!out.exists());
+
+    // A missing sensor file.
+    fails(&["reconstruct", "--sensor", s(&dir.path().join("nope.toml")), s(&cap), "--out", s(&out)], &["nope.toml"], &out);
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).expect("mkdir");
+    for e in std::fs::read_dir(from).expect("read_dir") {
+        let e = e.expect("entry");
+        std::fs::copy(e.path(), to.join(e.file_name())).expect("copy");
+    }
+}
+
+fn append(path: &Path, text: &str) {
+    let mut s = std::fs::read_to_string(path).expect("read");
+    s.push_str(text);
+    std::fs::write(path, s).expect("write");
+}

@@ -1,1 +1,19 @@
-fn main(){}
+//! Decoding speed: a 2048x2048 capture of a 1024x768 projector (42 frames) to sub-pixel maps.
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use ris_core::decode::{decode, DecodeParams};
+
+mod common;
+
+fn bench(c: &mut Criterion) {
+    let (_, capture, _) = common::captures_2k();
+    assert_eq!(capture.frames.len(), 42);
+    let params = DecodeParams::default();
+    let mut g = c.benchmark_group("decode");
+    g.sample_size(20);
+    g.bench_function("2048x2048_42_frames", |b| b.iter(|| decode(&capture, &params).expect("decode")));
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

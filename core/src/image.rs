@@ -27,7 +27,7 @@ pub struct GrayImage {
 }
 
 /// Sample types the decoder works on directly (u8 and u16).
-pub trait Sample: Copy + Send + Sync + 'static {
+pub trait Sample: Copy + Default + Send + Sync + 'static {
     /// The value widened to i32.
     fn to_i32(self) -> i32;
 }

@@ -3,6 +3,7 @@
 use rayon::prelude::*;
 
 use super::ScanDirection;
+
 use crate::image::Sample;
 use crate::pattern::{binary_to_gray, flipped_bit};
 
@@ -30,25 +31,23 @@ pub(super) struct Signal<'a, T> {
 }
 
 impl<T: Sample> Signal<'_, T> {
-    /// Pattern minus inverse (or 2P − W − K) of bit `j` at pixel `i`, divided by the pixel's
-    /// contrast so that albedo differences between neighbouring pixels do not move the edge.
-    #[inline]
     /// White − black at pixel `i` (at least 1).
     #[inline]
     fn contrast(&self, i: usize) -> f32 {
         (self.white[i].to_i32() - self.black[i].to_i32()).max(1) as f32
     }
 
+    /// Pattern minus inverse (or 2P − W − K) of bit `j` at pixel `i`, times `inv_contrast`
+    /// (1 / the pixel's contrast) so that albedo differences between neighbouring pixels do not
+    /// move the edge.
     #[inline]
-    fn normalized(&self, j: usize, i: usize) -> f32 {
-        let w = self.white[i].to_i32();
-        let k = self.black[i].to_i32();
+    fn normalized(&self, j: usize, i: usize, inv_contrast: f32) -> f32 {
         let p = self.pat[j][i].to_i32();
         let s = match self.inv {
             Some(inv) => p - inv[j][i].to_i32(),
-            None => 2 * p - w - k,
+            None => 2 * p - self.white[i].to_i32() - self.black[i].to_i32(),
         };
-        s as f32 / (w - k).max(1) as f32
+        s as f32 * inv_contrast
     }
 }
 
@@ -84,8 +83,15 @@ struct Code {
     albedo_power: i32,
 }
 
+/// Columns handled together when scanning down columns, so frame reads stay row-major.
+const BLOCK: usize = 64;
+
 /// Continuous projector coordinate per pixel (NaN where invalid) and a quality factor (1 where
 /// interpolated between edges, 0.5 where extrapolated from one side, 0 where invalid).
+///
+/// Along rows the result is row-major (h × w). Along columns it is *transposed* (w × h: one
+/// row per camera column), so that the filters that follow can always look across the scan
+/// as "the previous and next row".
 #[allow(clippy::too_many_arguments)]
 pub(super) fn subpixel<T: Sample>(
     w: usize,
@@ -110,45 +116,59 @@ pub(super) fn subpixel<T: Sample>(
     let mut quality = vec![0f32; w * h];
     match dir {
         ScanDirection::AlongRows => {
-            coord.par_chunks_mut(w).zip(quality.par_chunks_mut(w)).enumerate().for_each_init(
-                Vec::new,
-                |edges, (y, (out, q))| {
-                    process_line(Line { start: y * w, stride: 1, len: w }, codes, signal, &code, edges, out, q);
-                },
-            );
+            coord.par_chunks_mut(w).zip(quality.par_chunks_mut(w)).enumerate().for_each_init(Vec::new, |edges, (y, (out, q))| {
+                let line = Line { start: y * w, stride: 1, len: w };
+                edges.clear();
+                let mut chain = ChainState::default();
+                for n in 0..w.saturating_sub(1) {
+                    gap_edges(y * w + n, y * w + n + 1, n, codes, signal, &code, &mut chain, edges);
+                }
+                fit_runs(line, codes, &code, edges, out, q);
+            });
         }
         ScanDirection::AlongColumns => {
-            // Columns are processed into a transposed buffer so each task owns its output.
-            let mut coord_t = vec![f32::NAN; w * h];
-            let mut quality_t = vec![0f32; w * h];
-            coord_t.par_chunks_mut(h).zip(quality_t.par_chunks_mut(h)).enumerate().for_each_init(
-                Vec::new,
-                |edges, (x, (out, q))| {
-                    process_line(Line { start: x, stride: w, len: h }, codes, signal, &code, edges, out, q);
+            // Phase 2 reads each column's codes contiguously from a transposed copy.
+            let codes_t = super::transpose(codes, w, h);
+            coord.par_chunks_mut(BLOCK * h).zip(quality.par_chunks_mut(BLOCK * h)).enumerate().for_each_init(
+                || (vec![Vec::new(); BLOCK], vec![ChainState::default(); BLOCK]),
+                |(edges, chains), (b, (out, q))| {
+                    let x0 = b * BLOCK;
+                    let bw = out.len() / h;
+                    for x in 0..bw {
+                        edges[x].clear();
+                        chains[x] = ChainState::default();
+                    }
+                    // Phase 1, row-major inside the block: every vertical gap of every column.
+                    for y in 0..h.saturating_sub(1) {
+                        for x in 0..bw {
+                            let i0 = y * w + x0 + x;
+                            gap_edges(i0, i0 + w, y, codes, signal, &code, &mut chains[x], &mut edges[x]);
+                        }
+                    }
+                    // Phase 2, per column: runs and line fits into this column's output row.
+                    for x in 0..bw {
+                        let line = Line { start: (x0 + x) * h, stride: 1, len: h };
+                        fit_runs(line, &codes_t, &code, &edges[x], &mut out[x * h..(x + 1) * h], &mut q[x * h..(x + 1) * h]);
+                    }
                 },
             );
-            coord.par_chunks_mut(w).zip(quality.par_chunks_mut(w)).enumerate().for_each(|(y, (c, q))| {
-                for x in 0..w {
-                    c[x] = coord_t[x * h + y];
-                    q[x] = quality_t[x * h + y];
-                }
-            });
         }
     }
     (coord, quality)
 }
 
-fn process_line<T: Sample>(
-    line: Line,
-    codes: &[i32],
-    signal: &Signal<'_, T>,
-    code: &Code,
-    edges: &mut Vec<Edge>,
-    out: &mut [f32],
-    quality: &mut [f32],
-) {
+/// Chain bookkeeping of one line while its gaps are visited in order.
+#[derive(Clone, Copy, Debug, Default)]
+struct ChainState {
+    chain: u32,
+    broken: bool,
+    direction: i64,
+    started: bool,
+}
+
+/// Assign sub-pixel values to every run of equal code along the line from its edges.
+fn fit_runs(line: Line, codes: &[i32], code: &Code, edges: &[Edge], out: &mut [f32], quality: &mut [f32]) {
     let at = |n: usize| line.start + n * line.stride;
-    find_edges(line, codes, signal, code, edges);
     let mut n = 0usize;
     let mut e_idx = 0usize;
     while n < line.len {
@@ -189,13 +209,10 @@ fn process_line<T: Sample>(
             (None, Some(r)) => (r, widen_up(edges, r, code.window.max(2) - 1), 0.5),
             (None, None) => continue,
         };
-        if last <= first {
+        if last <= first || (q < 1.0 && !code.extrapolate) {
             continue;
         }
         let Some((alpha, beta)) = fit_line(&edges[first..=last], code.step) else { continue };
-        if q < 1.0 && !code.extrapolate {
-            continue;
-        }
         // A fitted value well outside the pixel's own code cell means the edges and the code
         // disagree (a mixed pixel): reject rather than clamp.
         let tol = code.cell_tolerance * code.step;
@@ -230,106 +247,103 @@ fn widen_up(edges: &[Edge], i: usize, k: usize) -> usize {
 /// Weighted least-squares line x = α + β P through the edges (camera position against projector
 /// coordinate P = step·boundary − 0.5; the noise is in x). `None` when degenerate.
 fn fit_line(edges: &[Edge], step: f32) -> Option<(f32, f32)> {
-    let p0 = f64::from(edges[0].boundary);
-    let (mut sw, mut sp, mut sx, mut spp, mut spx) = (0.0f64, 0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    // Small relative coordinates keep f32 exact enough (boundaries and positions differ by a
+    // few units inside a window).
+    let (b0, x0) = (edges[0].boundary, edges[0].x);
+    let (mut sw, mut sp, mut sx, mut spp, mut spx) = (0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32);
     for ed in edges {
-        let wgt = f64::from(ed.weight);
-        let p = f64::from(ed.boundary) - p0;
-        let x = f64::from(ed.x);
-        sw += wgt;
-        sp += wgt * p;
-        sx += wgt * x;
-        spp += wgt * p * p;
-        spx += wgt * p * x;
+        let p = ed.boundary as f32 - b0 as f32;
+        let x = ed.x - x0;
+        sw += ed.weight;
+        sp += ed.weight * p;
+        sx += ed.weight * x;
+        spp += ed.weight * p * p;
+        spx += ed.weight * p * x;
     }
     let den = sw * spp - sp * sp;
-    if den.abs() < 1e-12 * sw * sw {
+    if den.abs() < 1e-9 * sw * sw {
         return None;
     }
     let b = (sw * spx - sp * sx) / den; // camera pixels per code cell
-    let a = (sx - b * sp) / sw; // x at boundary p0
+    let a = (sx - b * sp) / sw + x0; // x at boundary b0
     if b.abs() < 1e-6 {
         return None;
     }
-    // x = a + b (B − p0) and P = step·B − 0.5  ⇒  x = α + β P.
-    let beta = b / f64::from(step);
-    let alpha = a - b * p0 + 0.5 * beta;
-    Some((alpha as f32, beta as f32))
+    // x = a + b (B − b0) and P = step·B − 0.5  ⇒  x = α + β P.
+    let beta = b / step;
+    let alpha = a - b * b0 as f32 + 0.5 * beta;
+    Some((alpha, beta))
 }
 
-/// Locate every sub-pixel boundary along the line, in order of the gap it lies in, and group
-/// them into chains.
-fn find_edges<T: Sample>(line: Line, codes: &[i32], signal: &Signal<'_, T>, code: &Code, edges: &mut Vec<Edge>) {
-    edges.clear();
-    let mut chain = 0u32;
-    let mut broken = true;
-    let mut direction = 0i64;
-    for n in 0..line.len.saturating_sub(1) {
-        let i0 = line.start + n * line.stride;
-        let i1 = i0 + line.stride;
-        let (c0, c1) = (codes[i0], codes[i1]);
-        if c0 < 0 || c1 < 0 {
-            broken = true;
+/// Locate the sub-pixel boundaries in the gap between pixel `i0` (position `n` on its line)
+/// and the next pixel `i1`, and continue or break the line's chain.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn gap_edges<T: Sample>(i0: usize, i1: usize, n: usize, codes: &[i32], signal: &Signal<'_, T>, code: &Code, state: &mut ChainState, edges: &mut Vec<Edge>) {
+    let (c0, c1) = (codes[i0], codes[i1]);
+    if c0 < 0 || c1 < 0 {
+        state.broken = true;
+        return;
+    }
+    if c0 == c1 {
+        return;
+    }
+    let (lo, hi) = (c0.min(c1) as u32, c0.max(c1) as u32);
+    if hi - lo > code.max_jump {
+        state.broken = true;
+        return;
+    }
+    let differs = binary_to_gray(c0 as u32) ^ binary_to_gray(c1 as u32);
+    let increasing = c1 > c0;
+    let (k0, k1) = (signal.contrast(i0), signal.contrast(i1));
+    let (r0, r1) = (1.0 / k0, 1.0 / k1);
+    let weight = (k0.min(k1) * r0.min(r1)).powi(code.albedo_power).max(1e-4);
+    let first = edges.len();
+    for b in lo + 1..=hi {
+        let k = flipped_bit(b);
+        if (differs >> k) & 1 == 0 || k >= code.bits {
             continue;
         }
-        if c0 == c1 {
+        let j = (code.bits - 1 - k) as usize;
+        let (s0, s1) = (signal.normalized(j, i0, r0), signal.normalized(j, i1, r1));
+        let den = s0 - s1;
+        if den == 0.0 {
             continue;
         }
-        let (lo, hi) = (c0.min(c1) as u32, c0.max(c1) as u32);
-        if hi - lo > code.max_jump {
-            broken = true;
-            continue;
+        let t = s0 / den;
+        if (0.0..=1.0).contains(&t) {
+            edges.push(Edge { gap: n as u32, x: n as f32 + t, boundary: b, chain: 0, weight });
         }
-        let differs = binary_to_gray(c0 as u32) ^ binary_to_gray(c1 as u32);
-        let increasing = c1 > c0;
-        let (k0, k1) = (signal.contrast(i0), signal.contrast(i1));
-        let weight = (k0.min(k1) / k0.max(k1)).powi(code.albedo_power).max(1e-4);
-        let first = edges.len();
-        for b in lo + 1..=hi {
-            let k = flipped_bit(b);
-            if (differs >> k) & 1 == 0 || k >= code.bits {
-                continue;
-            }
-            let j = (code.bits - 1 - k) as usize;
-            let (s0, s1) = (signal.normalized(j, i0), signal.normalized(j, i1));
-            let den = s0 - s1;
-            if den == 0.0 {
-                continue;
-            }
-            let t = s0 / den;
-            if (0.0..=1.0).contains(&t) {
-                edges.push(Edge { gap: n as u32, x: n as f32 + t, boundary: b, chain, weight });
+    }
+    if edges.len() == first {
+        state.broken = true;
+        return;
+    }
+    let run = &mut edges[first..];
+    if run.len() > 1 {
+        // Several boundaries in one gap come out in the order of their codes, monotonic in x.
+        run.sort_by(|p, q| if increasing { p.boundary.cmp(&q.boundary) } else { q.boundary.cmp(&p.boundary) });
+        for i in 1..run.len() {
+            if run[i].x < run[i - 1].x {
+                let mid = 0.5 * (run[i].x + run[i - 1].x);
+                run[i].x = mid;
+                run[i - 1].x = mid;
             }
         }
-        if edges.len() == first {
-            broken = true;
-            continue;
-        }
-        let run = &mut edges[first..];
-        if run.len() > 1 {
-            // Several boundaries in one gap come out in the order of their codes, monotonic in x.
-            run.sort_by(|p, q| if increasing { p.boundary.cmp(&q.boundary) } else { q.boundary.cmp(&p.boundary) });
-            for i in 1..run.len() {
-                if run[i].x < run[i - 1].x {
-                    let mid = 0.5 * (run[i].x + run[i - 1].x);
-                    run[i].x = mid;
-                    run[i - 1].x = mid;
-                }
-            }
-        }
-        let dir = if increasing { 1 } else { -1 };
-        let continues = !broken && first > 0 && dir == direction && {
-            let prev = edges[first - 1].boundary as i64;
-            edges[first].boundary as i64 - prev == dir
-        };
-        if !continues {
-            chain += 1;
-        }
-        direction = dir;
-        broken = false;
-        for ed in &mut edges[first..] {
-            ed.chain = chain;
-        }
+    }
+    let dir = if increasing { 1 } else { -1 };
+    let continues = state.started && !state.broken && first > 0 && dir == state.direction && {
+        let prev = i64::from(edges[first - 1].boundary);
+        i64::from(edges[first].boundary) - prev == dir
+    };
+    if !continues {
+        state.chain += 1;
+    }
+    state.direction = dir;
+    state.broken = false;
+    state.started = true;
+    for ed in &mut edges[first..] {
+        ed.chain = state.chain;
     }
 }
 

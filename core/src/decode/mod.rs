@@ -238,18 +238,22 @@ fn decode_planes<T: Sample>(capture: &CaptureSet, planes: &Planes<'_, T>, params
     };
     let layout = capture.layout;
     let run_axis = |axis: CodeAxis, frames: &(Vec<&[T]>, Option<Vec<&[T]>>)| -> (Vec<f32>, Vec<f32>, Binarization) {
+        let t0 = std::time::Instant::now();
         let codes = binarize::codes(w, h, planes.white, planes.black, &frames.0, frames.1.as_deref(), layout.cells(axis), thresholds);
         let dir = scan_direction(w, h, &codes);
-        let signal = line_shift::Signal { white: planes.white, black: planes.black, pat: &frames.0, inv: frames.1.as_deref() };
-        let (mut coord, quality) = line_shift::subpixel(w, h, &codes, &signal, dir, layout.bits(axis), layout.step(axis), params);
-        reject_inconsistent(w, h, &mut coord, dir, params.consistency_cells * layout.step(axis) as f32);
-        for _ in 0..params.edge_erosion {
-            erode(w, h, &mut coord, dir);
-        }
-        if params.cross_smoothing {
-            smooth_across(w, h, &mut coord, dir, params.consistency_cells * layout.step(axis) as f32);
-        }
+        let tolerance = params.consistency_cells * layout.step(axis) as f32;
         let bin = if frames.1.is_some() { Binarization::Dual } else { Binarization::Threshold };
+        let signal = line_shift::Signal { white: planes.white, black: planes.black, pat: &frames.0, inv: frames.1.as_deref() };
+        let (coord, quality) = line_shift::subpixel(w, h, &codes, &signal, dir, layout.bits(axis), layout.step(axis), params);
+        // The filters look across the scan as rows; a column scan comes back transposed.
+        let (lw, lh) = if dir == ScanDirection::AlongRows { (w, h) } else { (h, w) };
+        let coord = filter_across(lw, lh, &coord, tolerance, params);
+        let need_quality = axis == CodeAxis::Column;
+        let (coord, quality) = match dir {
+            ScanDirection::AlongRows => (coord, quality),
+            ScanDirection::AlongColumns => (transpose(&coord, h, w), if need_quality { transpose(&quality, h, w) } else { Vec::new() }),
+        };
+        tracing::debug!(?axis, ?dir, elapsed_ms = t0.elapsed().as_secs_f64() * 1e3, "axis decoded");
         (coord, quality, bin)
     };
     let (col, quality, binarization) = run_axis(CodeAxis::Column, &planes.col);
@@ -266,80 +270,123 @@ fn decode_planes<T: Sample>(capture: &CaptureSet, planes: &Planes<'_, T>, params
     Decoded { width: capture.width, height: capture.height, layout, col, row, confidence, binarization }
 }
 
-/// Reject pixels on a depth edge that runs along the scan direction: a pixel whose coordinate
-/// jumps by more than `tolerance` to a valid neighbour across the scan (or that has no valid
-/// neighbour there to agree with) mixes two surfaces. Jumps along the scan already break the
-/// edge chains of line shifting.
-fn reject_inconsistent(w: usize, h: usize, coord: &mut [f32], dir: ScanDirection, tolerance: f32) {
-    let (step, count) = match dir {
-        ScanDirection::AlongRows => (w, h),
-        ScanDirection::AlongColumns => (1, w),
-    };
-    let src = coord.to_vec();
-    coord.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        for (x, v) in row.iter_mut().enumerate() {
-            if !v.is_finite() {
-                continue;
-            }
-            let i = y * w + x;
-            let pos = if step == w { y } else { x };
-            let neighbours = [(pos > 0).then(|| src[i - step]), (pos + 1 < count).then(|| src[i + step])];
-            let valid = neighbours.iter().flatten().filter(|n| n.is_finite());
-            let (mut agree, mut jump) = (false, false);
-            for n in valid {
-                if (n - *v).abs() <= tolerance {
-                    agree = true;
-                } else {
-                    jump = true;
+/// Blocked parallel transpose of a row-major (w × h) image into a row-major (h × w) one.
+pub(crate) fn transpose<T: Copy + Send + Sync + Default>(src: &[T], w: usize, h: usize) -> Vec<T> {
+    const B: usize = 32;
+    let mut out = vec![T::default(); w * h];
+    out.par_chunks_mut(B * h).enumerate().for_each(|(bx, block)| {
+        let x0 = bx * B;
+        let bw = block.len() / h;
+        for y0 in (0..h).step_by(B) {
+            for y in y0..(y0 + B).min(h) {
+                let row = &src[y * w + x0..y * w + x0 + bw];
+                for (dx, &v) in row.iter().enumerate() {
+                    block[dx * h + y] = v;
                 }
             }
-            if jump || !agree {
-                *v = f32::NAN;
-            }
         }
     });
+    out
 }
 
-/// Invalidate every valid pixel with an invalid neighbour across the scan direction (image
-/// borders do not count). Along the scan, line shifting already refuses one-sided pixels.
-fn erode(w: usize, h: usize, coord: &mut [f32], dir: ScanDirection) {
-    let src = coord.to_vec();
-    coord.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        for (x, v) in row.iter_mut().enumerate() {
-            let i = y * w + x;
-            let bad = |j: usize| !src[j].is_finite();
-            let edge = match dir {
-                ScanDirection::AlongRows => (y > 0 && bad(i - w)) || (y + 1 < h && bad(i + w)),
-                ScanDirection::AlongColumns => (x > 0 && bad(i - 1)) || (x + 1 < w && bad(i + 1)),
-            };
-            if v.is_finite() && edge {
-                *v = f32::NAN;
-            }
-        }
-    });
-}
+/// Rows per task of the fused filter pass.
+const BAND: usize = 32;
 
-/// [1, 2, 1] average across the scan direction where both neighbours are valid and within
-/// `tolerance`; elsewhere the value is kept as is (no one-sided averaging, which would bias).
-fn smooth_across(w: usize, h: usize, coord: &mut [f32], dir: ScanDirection, tolerance: f32) {
-    let (step, count) = match dir {
-        ScanDirection::AlongRows => (w, h),
-        ScanDirection::AlongColumns => (1, w),
-    };
-    let src = coord.to_vec();
-    coord.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        for (x, v) in row.iter_mut().enumerate() {
-            let pos = if step == w { y } else { x };
-            if !v.is_finite() || pos == 0 || pos + 1 >= count {
-                continue;
+/// The depth-edge filters across the scan (which runs along rows), fused into one banded pass:
+///
+/// 1. *reject*: a pixel whose coordinate jumps by more than `tolerance` to a valid neighbour
+///    across the scan, or that has no valid neighbour there to agree with, mixes two surfaces
+///    (a depth edge running along the scan; jumps along it already break line shifting's chains);
+/// 2. *erode* (`edge_erosion` times): pixels next to an invalid one across the scan are dropped,
+///    since footprints on depth edges and shadow borders mix two surfaces;
+/// 3. *smooth* (`cross_smoothing`): [1, 2, 1] across the scan where both neighbours are valid
+///    and within `tolerance`; line shifting on neighbouring lines gives independent estimates and
+///    the symmetric kernel leaves slopes untouched. No one-sided averaging (it would bias).
+///
+/// Output row y depends on input rows y ± (2 + erosion), so each band reads a few extra rows
+/// and nothing is copied whole.
+fn filter_across(w: usize, h: usize, coord: &[f32], tolerance: f32, params: &DecodeParams) -> Vec<f32> {
+    let erosion = params.edge_erosion as usize;
+    let halo = 2 + erosion;
+    let mut out = vec![f32::NAN; w * h];
+    out.par_chunks_mut(BAND * w).enumerate().for_each_init(
+        || (Vec::<bool>::new(), Vec::<bool>::new()),
+        |(keep, next), (band, dst)| {
+            let y0 = band * BAND;
+            let y1 = (y0 + dst.len() / w).min(h);
+            // Rows lo..hi of validity after `reject`.
+            let lo = y0.saturating_sub(halo - 1);
+            let hi = (y1 + halo - 1).min(h);
+            let rows = hi - lo;
+            keep.clear();
+            keep.resize(rows * w, false);
+            for y in lo..hi {
+                let cur = &coord[y * w..(y + 1) * w];
+                let above = (y > 0).then(|| &coord[(y - 1) * w..y * w]);
+                let below = (y + 1 < h).then(|| &coord[(y + 1) * w..(y + 2) * w]);
+                let k = &mut keep[(y - lo) * w..(y - lo + 1) * w];
+                for x in 0..w {
+                    let v = cur[x];
+                    if !v.is_finite() {
+                        continue;
+                    }
+                    let (mut agree, mut jump) = (false, false);
+                    for n in [above.map(|r| r[x]), below.map(|r| r[x])].into_iter().flatten() {
+                        if n.is_finite() {
+                            if (n - v).abs() <= tolerance {
+                                agree = true;
+                            } else {
+                                jump = true;
+                            }
+                        }
+                    }
+                    k[x] = agree && !jump;
+                }
             }
-            let i = y * w + x;
-            let (a, b) = (src[i - step], src[i + step]);
-            if (a - *v).abs() <= tolerance && (b - *v).abs() <= tolerance {
-                *v = 0.25 * (a + b) + 0.5 * *v;
+            // Erosion shrinks the valid rows' range by one per step.
+            let (mut vlo, mut vhi) = (lo, hi);
+            for _ in 0..erosion {
+                next.clear();
+                next.resize(rows * w, false);
+                for y in vlo..vhi {
+                    let r = y - lo;
+                    for x in 0..w {
+                        let i = r * w + x;
+                        let up = y == 0 || y == vlo || keep[i - w];
+                        let down = y + 1 == h || y + 1 == vhi || keep[i + w];
+                        // Band-internal borders (y == vlo, y + 1 == vhi) are outside the rows
+                        // this band writes, so their neighbours do not matter.
+                        next[i] = keep[i] && (y == 0 || y == vlo || up) && (y + 1 == h || y + 1 == vhi || down);
+                    }
+                }
+                std::mem::swap(keep, next);
+                if vlo > 0 {
+                    vlo += 1;
+                }
+                if vhi < h {
+                    vhi -= 1;
+                }
             }
-        }
-    });
+            let valid = |y: usize, x: usize| keep[(y - lo) * w + x];
+            for y in y0..y1 {
+                let d = &mut dst[(y - y0) * w..(y - y0 + 1) * w];
+                for x in 0..w {
+                    if !valid(y, x) {
+                        continue;
+                    }
+                    let v = coord[y * w + x];
+                    d[x] = v;
+                    if params.cross_smoothing && y > 0 && y + 1 < h && valid(y - 1, x) && valid(y + 1, x) {
+                        let (a, b) = (coord[(y - 1) * w + x], coord[(y + 1) * w + x]);
+                        if (a - v).abs() <= tolerance && (b - v).abs() <= tolerance {
+                            d[x] = 0.25 * (a + b) + 0.5 * v;
+                        }
+                    }
+                }
+            }
+        },
+    );
+    out
 }
 
 /// Choose the camera direction that crosses the stripes of a code: the one along which the code

@@ -216,8 +216,9 @@ fn fit_runs(line: Line, codes: &[i32], code: &Code, edges: &[Edge], out: &mut [f
         // A fitted value well outside the pixel's own code cell means the edges and the code
         // disagree (a mixed pixel): reject rather than clamp.
         let tol = code.cell_tolerance * code.step;
+        let inv_beta = 1.0 / beta;
         for m in a..=e {
-            let v = (m as f32 - alpha) / beta;
+            let v = (m as f32 - alpha) * inv_beta;
             if v >= lo - tol && v <= hi + tol {
                 out[m] = v.clamp(lo, hi);
                 quality[m] = q;

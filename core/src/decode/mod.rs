@@ -240,20 +240,24 @@ fn decode_planes<T: Sample>(capture: &CaptureSet, planes: &Planes<'_, T>, params
     let run_axis = |axis: CodeAxis, frames: &(Vec<&[T]>, Option<Vec<&[T]>>)| -> (Vec<f32>, Vec<f32>, Binarization) {
         let t0 = std::time::Instant::now();
         let codes = binarize::codes(w, h, planes.white, planes.black, &frames.0, frames.1.as_deref(), layout.cells(axis), thresholds);
+        let t_bin = t0.elapsed();
         let dir = scan_direction(w, h, &codes);
         let tolerance = params.consistency_cells * layout.step(axis) as f32;
         let bin = if frames.1.is_some() { Binarization::Dual } else { Binarization::Threshold };
         let signal = line_shift::Signal { white: planes.white, black: planes.black, pat: &frames.0, inv: frames.1.as_deref() };
         let (coord, quality) = line_shift::subpixel(w, h, &codes, &signal, dir, layout.bits(axis), layout.step(axis), params);
+        let t_sub = t0.elapsed();
         // The filters look across the scan as rows; a column scan comes back transposed.
         let (lw, lh) = if dir == ScanDirection::AlongRows { (w, h) } else { (h, w) };
         let coord = filter_across(lw, lh, &coord, tolerance, params);
+        let t_filter = t0.elapsed();
         let need_quality = axis == CodeAxis::Column;
         let (coord, quality) = match dir {
             ScanDirection::AlongRows => (coord, quality),
             ScanDirection::AlongColumns => (transpose(&coord, h, w), if need_quality { transpose(&quality, h, w) } else { Vec::new() }),
         };
-        tracing::debug!(?axis, ?dir, elapsed_ms = t0.elapsed().as_secs_f64() * 1e3, "axis decoded");
+        let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
+        tracing::debug!(?axis, ?dir, binarize_ms = ms(t_bin), line_shift_ms = ms(t_sub - t_bin), filters_ms = ms(t_filter - t_sub), total_ms = ms(t0.elapsed()), "axis decoded");
         (coord, quality, bin)
     };
     let (col, quality, binarization) = run_axis(CodeAxis::Column, &planes.col);

@@ -115,7 +115,7 @@ impl Reconstructor {
                         if !c.is_finite() || !decoded.col[i].is_finite() {
                             continue;
                         }
-                        if let Some(pp) = geometry.point(&self.rays, i, f64::from(c)) {
+                        if let Some(pp) = geometry.point_fast(&self.rays, i, f64::from(c)) {
                             let mut p = pp.point;
                             if let Some(res) = residual {
                                 let [a, b, cc] = res[i];
@@ -196,7 +196,8 @@ fn parallax_from_reference(camera: &Pinhole, rays: &RayTable, op: Vec3, referenc
         }
     }
     let (_, g, axis) = best.ok_or_else(|| Error::Insufficient("reference has no decodable code".into()))?;
-    Ok((g, axis))
+    let pixels = camera.width as usize * camera.height as usize;
+    Ok((g.with_table(rays, pixels), axis))
 }
 
 /// Plane points of valid reference pixels, subsampled to at most ~300 000.

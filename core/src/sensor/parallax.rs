@@ -41,41 +41,113 @@ pub struct Parallax {
     r_t: Mat3,
     /// The reference code map φ(X, Y).
     pub map: PlaneCodeMap,
+    /// Per camera pixel: φ along its epipolar line as a quadratic in the plane shift t around
+    /// the ray's own plane point, [φ(0), φ'(0), φ''(0)]; built by [`Parallax::with_table`].
+    table: Vec<[f32; 3]>,
+}
+
+/// The plane point of the ray `d` from `oc` and the unit direction of its epipolar line on the
+/// plane, or `None` for rays that miss the plane or point at the projector.
+#[inline]
+fn epipolar_line(oc: &Vec3, op: &Vec3, d: &Vec3) -> Option<(Vec3, f64, f64)> {
+    if d.z.abs() < 1e-12 {
+        return None;
+    }
+    let lam = -oc.z / d.z;
+    if lam <= 0.0 {
+        return None;
+    }
+    let q = oc + d * lam;
+    let n = (op - oc).cross(d);
+    let len = n.x.hypot(n.y);
+    if len < 1e-12 {
+        return None;
+    }
+    Some((q, n.y / len, -n.x / len))
 }
 
 impl Parallax {
     /// Geometry from the camera, the projector centre and the fitted reference.
     pub fn new(camera: &Pinhole, projector_center: Vec3, map: PlaneCodeMap) -> Self {
-        Parallax { oc: camera.center(), op: projector_center, r_t: camera.r.transpose(), map }
+        Parallax { oc: camera.center(), op: projector_center, r_t: camera.r.transpose(), map, table: Vec::new() }
+    }
+
+    /// Precompute the per-pixel quadratic of φ along each pixel's epipolar line, which lets
+    /// [`Parallax::point_fast`] reconstruct with one evaluation of the reference map.
+    pub fn with_table(mut self, rays: &RayTable, len: usize) -> Self {
+        use rayon::prelude::*;
+        let h = 1.0; // mm; φ is smooth on this scale
+        self.table = (0..len)
+            .into_par_iter()
+            .map(|i| {
+                let (x, y) = rays.get(i);
+                let d = self.r_t * Vec3::new(x, y, 1.0);
+                match epipolar_line(&self.oc, &self.op, &d) {
+                    Some((q, lx, ly)) => {
+                        let f = |t: f64| self.map.eval(q.x + t * lx, q.y + t * ly).0;
+                        let (fm, f0, fp) = (f(-h), f(0.0), f(h));
+                        [f0 as f32, ((fp - fm) / (2.0 * h)) as f32, ((fp - 2.0 * f0 + fm) / (h * h)) as f32]
+                    }
+                    None => [f32::NAN; 3],
+                }
+            })
+            .collect();
+        self
+    }
+
+    /// Reconstruct pixel `i` from the quadratic table (see [`Parallax::with_table`]) and one
+    /// Newton step on the true reference map; falls back to the iterative search when the
+    /// table has no entry.
+    #[inline]
+    pub fn point_fast(&self, rays: &RayTable, i: usize, code: f64) -> Option<ParallaxPoint> {
+        let (x, y) = rays.get(i);
+        let d = self.r_t * Vec3::new(x, y, 1.0);
+        let Some(&[f0, g, c2]) = self.table.get(i) else {
+            return self.point_for_direction(&d, code, 0.0).map(|(p, _)| p);
+        };
+        let (q, lx, ly) = epipolar_line(&self.oc, &self.op, &d)?;
+        let (f0, g, c2) = (f64::from(f0), f64::from(g), f64::from(c2));
+        if !(g.abs() > 1e-9) {
+            return None;
+        }
+        // Solve f0 + g t + c2 t²/2 = code (root nearest 0), then one Newton step on φ itself.
+        let r = code - f0;
+        let disc = g * g + 2.0 * c2 * r;
+        let mut t = if c2.abs() > 1e-12 && disc >= 0.0 { 2.0 * r / (g + g.signum() * disc.sqrt()) } else { r / g };
+        let (phi, gx, gy) = self.map.eval(q.x + t * lx, q.y + t * ly);
+        let gl = gx * lx + gy * ly;
+        if gl.abs() < 1e-9 {
+            return None;
+        }
+        t -= (phi - code) / gl;
+        let pr = Vec3::new(q.x + t * lx, q.y + t * ly, 0.0);
+        let (alpha, gap) = closest_on_first(&self.oc, &d, &self.op, &(pr - self.op))?;
+        (alpha > 0.0).then(|| ParallaxPoint { point: self.oc + d * alpha, shift: t.abs(), gap })
     }
 
     /// Reconstruct the point seen at pixel `i` of `rays` carrying projector code `code`.
     #[inline]
     pub fn point(&self, rays: &RayTable, i: usize, code: f64) -> Option<ParallaxPoint> {
         let (x, y) = rays.get(i);
-        self.point_for_direction(&(self.r_t * Vec3::new(x, y, 1.0)), code)
+        self.point_for_direction(&(self.r_t * Vec3::new(x, y, 1.0)), code, 0.0).map(|(p, _)| p)
     }
 
-    /// Reconstruct along a world ray direction `d` from the camera centre.
-    pub fn point_for_direction(&self, d: &Vec3, code: f64) -> Option<ParallaxPoint> {
+    /// As [`Parallax::point`], with the search along the epipolar line started at signed shift
+    /// `guess` (e.g. the neighbouring pixel's); returns the point and its signed shift.
+    #[inline]
+    pub fn point_near(&self, rays: &RayTable, i: usize, code: f64, guess: f64) -> Option<(ParallaxPoint, f64)> {
+        let (x, y) = rays.get(i);
+        self.point_for_direction(&(self.r_t * Vec3::new(x, y, 1.0)), code, guess)
+    }
+
+    /// Reconstruct along a world ray direction `d` from the camera centre, starting the Newton
+    /// search at signed plane shift `t0`.
+    pub fn point_for_direction(&self, d: &Vec3, code: f64, t0: f64) -> Option<(ParallaxPoint, f64)> {
         let (oc, op) = (&self.oc, &self.op);
-        if d.z.abs() < 1e-12 {
-            return None;
-        }
-        let lam = -oc.z / d.z;
-        if lam <= 0.0 {
-            return None;
-        }
-        let q = oc + d * lam;
-        let n = (op - oc).cross(d);
-        let len = n.x.hypot(n.y);
-        if len < 1e-12 {
-            return None;
-        }
-        let (lx, ly) = (n.y / len, -n.x / len);
-        let mut t = 0.0;
+        let (q, lx, ly) = epipolar_line(oc, op, d)?;
+        let mut t = t0;
         let mut converged = false;
-        for _ in 0..10 {
+        for _ in 0..12 {
             let (phi, gx, gy) = self.map.eval(q.x + t * lx, q.y + t * ly);
             let g = gx * lx + gy * ly;
             if g.abs() < 1e-9 {
@@ -83,7 +155,7 @@ impl Parallax {
             }
             let step = (phi - code) / g;
             t -= step;
-            if step.abs() < 1e-7 {
+            if step.abs() < 1e-5 {
                 converged = true;
                 break;
             }
@@ -93,7 +165,7 @@ impl Parallax {
         }
         let pr = Vec3::new(q.x + t * lx, q.y + t * ly, 0.0);
         let (alpha, gap) = closest_on_first(oc, d, op, &(pr - op))?;
-        (alpha > 0.0).then(|| ParallaxPoint { point: oc + d * alpha, shift: t.abs(), gap })
+        (alpha > 0.0).then(|| (ParallaxPoint { point: oc + d * alpha, shift: t.abs(), gap }, t))
     }
 
     /// Camera centre.

@@ -14,7 +14,11 @@ pub fn scene_2k() -> Scene {
     let s = 2048.0 / 800.0;
     file.camera.width = 2048;
     file.camera.height = 2048;
-    file.camera.k = [[1778.0 * s, 0.0, 1023.5], [0.0, 1778.0 * s, 1023.5], [0.0, 0.0, 1.0]];
+    file.camera.k = [
+        [1778.0 * s, 0.0, 1023.5],
+        [0.0, 1778.0 * s, 1023.5],
+        [0.0, 0.0, 1.0],
+    ];
     file.render.supersample = 1;
     Scene::from_file(file, path.parent().expect("dir"), "bench scene").expect("scene")
 }

@@ -1,4 +1,5 @@
 //! Decoding speed: a 2048x2048 capture of a 1024x768 projector (42 frames) to sub-pixel maps.
+#![allow(missing_docs)] // criterion_group! generates an undocumented public function
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use ris_core::decode::{decode, DecodeParams};
@@ -11,7 +12,9 @@ fn bench(c: &mut Criterion) {
     let params = DecodeParams::default();
     let mut g = c.benchmark_group("decode");
     g.sample_size(20);
-    g.bench_function("2048x2048_42_frames", |b| b.iter(|| decode(&capture, &params).expect("decode")));
+    g.bench_function("2048x2048_42_frames", |b| {
+        b.iter(|| decode(&capture, &params).expect("decode"))
+    });
     g.finish();
 }
 

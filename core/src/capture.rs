@@ -78,7 +78,14 @@ pub struct CaptureSet {
 impl CaptureSet {
     /// An empty capture set.
     pub fn new(layout: CodeLayout, width: u32, height: u32) -> Self {
-        CaptureSet { layout, width, height, frames: BTreeMap::new(), mask: None, meta: toml::Table::new() }
+        CaptureSet {
+            layout,
+            width,
+            height,
+            frames: BTreeMap::new(),
+            mask: None,
+            meta: toml::Table::new(),
+        }
     }
 
     /// The frame of `pattern`, if recorded.
@@ -88,14 +95,25 @@ impl CaptureSet {
 
     /// Whether the set carries every inverse pattern of `axis`.
     pub fn has_inverses(&self, axis: CodeAxis) -> bool {
-        (0..self.layout.bits(axis)).all(|bit| self.frames.contains_key(&Pattern::Gray { axis, bit, inverse: true }))
+        (0..self.layout.bits(axis)).all(|bit| {
+            self.frames.contains_key(&Pattern::Gray {
+                axis,
+                bit,
+                inverse: true,
+            })
+        })
     }
 
     /// Whether the set carries every pattern of the code along `axis`.
     pub fn has_code(&self, axis: CodeAxis) -> bool {
         self.layout.bits(axis) > 0
-            && (0..self.layout.bits(axis))
-                .all(|bit| self.frames.contains_key(&Pattern::Gray { axis, bit, inverse: false }))
+            && (0..self.layout.bits(axis)).all(|bit| {
+                self.frames.contains_key(&Pattern::Gray {
+                    axis,
+                    bit,
+                    inverse: false,
+                })
+            })
     }
 
     /// Read a capture directory. Every frame is checked against the camera size; a missing
@@ -105,13 +123,25 @@ impl CaptureSet {
         let m: ManifestFile = read_toml(&manifest_path)?;
         let ctx = manifest_path.display().to_string();
         if m.projector.width == 0 || m.projector.height == 0 {
-            return Err(Error::invalid(&ctx, "projector.width/height", "must be positive"));
+            return Err(Error::invalid(
+                &ctx,
+                "projector.width/height",
+                "must be positive",
+            ));
         }
         if m.projector.column_step == 0 || m.projector.row_step == 0 {
-            return Err(Error::invalid(&ctx, "projector.column_step/row_step", "must be ≥ 1"));
+            return Err(Error::invalid(
+                &ctx,
+                "projector.column_step/row_step",
+                "must be ≥ 1",
+            ));
         }
         if m.camera.width == 0 || m.camera.height == 0 {
-            return Err(Error::invalid(&ctx, "camera.width/height", "must be positive"));
+            return Err(Error::invalid(
+                &ctx,
+                "camera.width/height",
+                "must be positive",
+            ));
         }
         let layout = CodeLayout {
             width: m.projector.width,
@@ -121,21 +151,38 @@ impl CaptureSet {
         };
         let mut files: BTreeMap<Pattern, PathBuf> = BTreeMap::new();
         for (name, file) in &m.frames {
-            let p = Pattern::parse(name)
-                .map_err(|_| Error::invalid(&ctx, format!("frames.{name}"), "unknown pattern name"))?;
+            let p = Pattern::parse(name).map_err(|_| {
+                Error::invalid(&ctx, format!("frames.{name}"), "unknown pattern name")
+            })?;
             files.insert(p, dir.join(file));
         }
         // Required: white, black, all column codes. Optional: inverses, rows, flats.
         let mut wanted: Vec<(Pattern, bool)> = vec![(Pattern::White, true), (Pattern::Black, true)];
         for axis in [CodeAxis::Column, CodeAxis::Row] {
             for bit in 0..layout.bits(axis) {
-                wanted.push((Pattern::Gray { axis, bit, inverse: false }, axis == CodeAxis::Column));
-                wanted.push((Pattern::Gray { axis, bit, inverse: true }, false));
+                wanted.push((
+                    Pattern::Gray {
+                        axis,
+                        bit,
+                        inverse: false,
+                    },
+                    axis == CodeAxis::Column,
+                ));
+                wanted.push((
+                    Pattern::Gray {
+                        axis,
+                        bit,
+                        inverse: true,
+                    },
+                    false,
+                ));
             }
         }
         let mut to_load: Vec<(Pattern, PathBuf)> = Vec::new();
         for (p, required) in wanted {
-            let path = files.remove(&p).unwrap_or_else(|| dir.join(format!("{}.png", p.name())));
+            let path = files
+                .remove(&p)
+                .unwrap_or_else(|| dir.join(format!("{}.png", p.name())));
             if path.exists() {
                 to_load.push((p, path));
             } else if required || m.frames.contains_key(&p.name()) {
@@ -153,12 +200,19 @@ impl CaptureSet {
                     return Err(Error::invalid(
                         &ctx,
                         format!("frames.{}", p.name()),
-                        format!("bit {bit} does not exist for a {}-bit code", layout.bits(axis)),
+                        format!(
+                            "bit {bit} does not exist for a {}-bit code",
+                            layout.bits(axis)
+                        ),
                     ));
                 }
             }
             if !path.exists() {
-                return Err(Error::invalid(&ctx, format!("frames.{}", p.name()), format!("frame file {} is missing", path.display())));
+                return Err(Error::invalid(
+                    &ctx,
+                    format!("frames.{}", p.name()),
+                    format!("frame file {} is missing", path.display()),
+                ));
             }
             to_load.push((p, path));
         }
@@ -192,26 +246,51 @@ impl CaptureSet {
         set.meta = m.meta;
         for axis in [CodeAxis::Column, CodeAxis::Row] {
             let n_inv = (0..layout.bits(axis))
-                .filter(|&bit| set.frames.contains_key(&Pattern::Gray { axis, bit, inverse: true }))
+                .filter(|&bit| {
+                    set.frames.contains_key(&Pattern::Gray {
+                        axis,
+                        bit,
+                        inverse: true,
+                    })
+                })
                 .count();
             if n_inv != 0 && n_inv != layout.bits(axis) as usize {
                 return Err(Error::invalid(
                     &ctx,
                     "frames",
-                    format!("{axis:?} code has {n_inv} of {} inverse frames: give all or none", layout.bits(axis)),
+                    format!(
+                        "{axis:?} code has {n_inv} of {} inverse frames: give all or none",
+                        layout.bits(axis)
+                    ),
                 ));
             }
         }
-        if set.has_code(CodeAxis::Row) || (0..layout.row_bits()).any(|bit| set.frames.contains_key(&Pattern::Gray { axis: CodeAxis::Row, bit, inverse: false })) {
-            if !set.has_code(CodeAxis::Row) {
-                return Err(Error::invalid(&ctx, "frames", "row code is incomplete: give every gray_row_KK or none"));
-            }
+        let any_row = (0..layout.row_bits()).any(|bit| {
+            set.frames.contains_key(&Pattern::Gray {
+                axis: CodeAxis::Row,
+                bit,
+                inverse: false,
+            })
+        });
+        if any_row && !set.has_code(CodeAxis::Row) {
+            return Err(Error::invalid(
+                &ctx,
+                "frames",
+                "row code is incomplete: give every gray_row_KK or none",
+            ));
         }
         if let Some(mask) = m.mask {
             let path = dir.join(&mask.file);
             let img = GrayImage::load(&path)?;
             if (img.width, img.height) != (layout.width, layout.height) {
-                return Err(Error::invalid(&ctx, "mask.file", format!("mask is {}x{}, projector is {}x{}", img.width, img.height, layout.width, layout.height)));
+                return Err(Error::invalid(
+                    &ctx,
+                    "mask.file",
+                    format!(
+                        "mask is {}x{}, projector is {}x{}",
+                        img.width, img.height, layout.width, layout.height
+                    ),
+                ));
             }
             set.mask = Some(img);
         }
@@ -223,11 +302,15 @@ impl CaptureSet {
     /// last, so a directory without a manifest is recognisably incomplete.
     pub fn save(&self, dir: &Path) -> Result<()> {
         create_dir(dir)?;
-        self.frames.par_iter().try_for_each(|(p, img)| img.save_png(&dir.join(format!("{}.png", p.name()))))?;
+        self.frames
+            .par_iter()
+            .try_for_each(|(p, img)| img.save_png(&dir.join(format!("{}.png", p.name()))))?;
         let mask = match &self.mask {
             Some(m) => {
                 m.save_png(&dir.join("mask.png"))?;
-                Some(MaskSection { file: "mask.png".into() })
+                Some(MaskSection {
+                    file: "mask.png".into(),
+                })
             }
             None => None,
         };
@@ -238,7 +321,10 @@ impl CaptureSet {
                 column_step: self.layout.column_step,
                 row_step: self.layout.row_step,
             },
-            camera: CameraSection { width: self.width, height: self.height },
+            camera: CameraSection {
+                width: self.width,
+                height: self.height,
+            },
             frames: BTreeMap::new(),
             mask,
             meta: self.meta.clone(),
@@ -255,7 +341,8 @@ mod tests {
         let layout = CodeLayout::new(8, 4);
         let mut set = CaptureSet::new(layout, 8, 4);
         for p in layout.sequence(true) {
-            set.frames.insert(p, GrayImage::from_u8(8, 4, layout.render(p)));
+            set.frames
+                .insert(p, GrayImage::from_u8(8, 4, layout.render(p)));
         }
         set
     }
@@ -275,27 +362,48 @@ mod tests {
         let dir = tempfile::tempdir().expect("tempdir");
         let set = tiny();
         set.save(dir.path()).expect("save");
-        std::fs::rename(dir.path().join("white.png"), dir.path().join("frame_00.png")).expect("rename");
+        std::fs::rename(
+            dir.path().join("white.png"),
+            dir.path().join("frame_00.png"),
+        )
+        .expect("rename");
         let manifest = dir.path().join(MANIFEST);
         let text = std::fs::read_to_string(&manifest).expect("read");
-        std::fs::write(&manifest, format!("{text}\n[frames]\nwhite = \"frame_00.png\"\n")).expect("write");
+        std::fs::write(
+            &manifest,
+            format!("{text}\n[frames]\nwhite = \"frame_00.png\"\n"),
+        )
+        .expect("write");
         CaptureSet::load(dir.path()).expect("mapped white loads");
         std::fs::remove_file(dir.path().join("frame_00.png")).expect("rm");
-        let msg = CaptureSet::load(dir.path()).expect_err("missing").to_string();
-        assert!(msg.contains("frame_00.png") && msg.contains("frames.white"), "{msg}");
+        let msg = CaptureSet::load(dir.path())
+            .expect_err("missing")
+            .to_string();
+        assert!(
+            msg.contains("frame_00.png") && msg.contains("frames.white"),
+            "{msg}"
+        );
     }
 
     #[test]
     fn size_mismatch_and_unknown_pattern_are_errors() {
         let dir = tempfile::tempdir().expect("tempdir");
         tiny().save(dir.path()).expect("save");
-        GrayImage::from_u8(4, 4, vec![0; 16]).save_png(&dir.path().join("black.png")).expect("save");
+        GrayImage::from_u8(4, 4, vec![0; 16])
+            .save_png(&dir.path().join("black.png"))
+            .expect("save");
         let msg = CaptureSet::load(dir.path()).expect_err("size").to_string();
         assert!(msg.contains("black.png") && msg.contains("4x4"), "{msg}");
         let manifest = dir.path().join(MANIFEST);
         let text = std::fs::read_to_string(&manifest).expect("read");
-        std::fs::write(&manifest, format!("{text}\n[frames]\nstripes = \"a.png\"\n")).expect("write");
-        let msg = CaptureSet::load(dir.path()).expect_err("unknown").to_string();
+        std::fs::write(
+            &manifest,
+            format!("{text}\n[frames]\nstripes = \"a.png\"\n"),
+        )
+        .expect("write");
+        let msg = CaptureSet::load(dir.path())
+            .expect_err("unknown")
+            .to_string();
         assert!(msg.contains("frames.stripes"), "{msg}");
     }
 }

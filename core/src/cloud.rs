@@ -21,11 +21,17 @@ impl PointCloud {
     /// Compact a dense per-pixel buffer (NaN = no point) with its confidence map.
     pub fn from_dense(dense: &[[f32; 3]], confidence: &[f32]) -> PointCloud {
         let n = dense.iter().filter(|p| p[0].is_finite()).count();
-        let mut cloud = PointCloud { points: Vec::with_capacity(n), confidence: Vec::with_capacity(n), pixels: Vec::with_capacity(n) };
+        let mut cloud = PointCloud {
+            points: Vec::with_capacity(n),
+            confidence: Vec::with_capacity(n),
+            pixels: Vec::with_capacity(n),
+        };
         for (i, p) in dense.iter().enumerate() {
             if p[0].is_finite() {
                 cloud.points.push(*p);
-                cloud.confidence.push(confidence.get(i).copied().unwrap_or(1.0));
+                cloud
+                    .confidence
+                    .push(confidence.get(i).copied().unwrap_or(1.0));
                 cloud.pixels.push(i as u32);
             }
         }
@@ -62,7 +68,10 @@ impl PointCloud {
     /// Read a PLY file (ASCII, binary little- or big-endian); `confidence` defaults to 1.
     pub fn read_ply(path: &Path) -> Result<PointCloud> {
         let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-        parse_ply(&bytes).map_err(|message| Error::Format { path: path.to_path_buf(), message })
+        parse_ply(&bytes).map_err(|message| Error::Format {
+            path: path.to_path_buf(),
+            message,
+        })
     }
 }
 
@@ -88,7 +97,11 @@ fn read_scalar(t: &str, b: &[u8], enc: Encoding) -> f64 {
         ($ty:ty, $n:expr) => {{
             let mut a = [0u8; $n];
             a.copy_from_slice(&b[..$n]);
-            (if enc == Encoding::Be { <$ty>::from_be_bytes(a) } else { <$ty>::from_le_bytes(a) }) as f64
+            (if enc == Encoding::Be {
+                <$ty>::from_be_bytes(a)
+            } else {
+                <$ty>::from_le_bytes(a)
+            }) as f64
         }};
     }
     match t {
@@ -104,7 +117,11 @@ fn read_scalar(t: &str, b: &[u8], enc: Encoding) -> f64 {
 }
 
 fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
-    let end = bytes.windows(11).position(|w| w == b"end_header\n").ok_or("no end_header line")? + 11;
+    let end = bytes
+        .windows(11)
+        .position(|w| w == b"end_header\n")
+        .ok_or("no end_header line")?
+        + 11;
     let header = std::str::from_utf8(&bytes[..end]).map_err(|_| "header is not text")?;
     let mut lines = header.lines();
     if lines.next() != Some("ply") {
@@ -132,7 +149,9 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
                 }
                 in_vertex = false;
             }
-            ["property", "list", ..] if in_vertex => return Err("list properties on vertices are not supported".into()),
+            ["property", "list", ..] if in_vertex => {
+                return Err("list properties on vertices are not supported".into())
+            }
             ["property", t, name] if in_vertex => {
                 type_size(t).ok_or_else(|| format!("unknown property type `{t}`"))?;
                 props.push((t.to_string(), name.to_string()));
@@ -149,7 +168,11 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
         _ => return Err("vertex has no x, y, z properties".into()),
     };
     let ic = idx("confidence");
-    let mut cloud = PointCloud { points: Vec::with_capacity(count), confidence: Vec::with_capacity(count), pixels: Vec::new() };
+    let mut cloud = PointCloud {
+        points: Vec::with_capacity(count),
+        confidence: Vec::with_capacity(count),
+        pixels: Vec::new(),
+    };
     let body = &bytes[end..];
     let mut vals = vec![0f64; props.len()];
     match enc {
@@ -158,9 +181,15 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
             let mut tokens = text.split_whitespace();
             for k in 0..count {
                 for v in vals.iter_mut() {
-                    *v = tokens.next().ok_or(format!("truncated at vertex {k}"))?.parse().map_err(|_| format!("bad number at vertex {k}"))?;
+                    *v = tokens
+                        .next()
+                        .ok_or(format!("truncated at vertex {k}"))?
+                        .parse()
+                        .map_err(|_| format!("bad number at vertex {k}"))?;
                 }
-                cloud.points.push([vals[ix] as f32, vals[iy] as f32, vals[iz] as f32]);
+                cloud
+                    .points
+                    .push([vals[ix] as f32, vals[iy] as f32, vals[iz] as f32]);
                 cloud.confidence.push(ic.map_or(1.0, |c| vals[c] as f32));
             }
         }
@@ -168,7 +197,11 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
             let sizes: Vec<usize> = props.iter().filter_map(|(t, _)| type_size(t)).collect();
             let stride: usize = sizes.iter().sum();
             if body.len() < stride * count {
-                return Err(format!("truncated: {count} vertices need {} bytes, file has {}", stride * count, body.len()));
+                return Err(format!(
+                    "truncated: {count} vertices need {} bytes, file has {}",
+                    stride * count,
+                    body.len()
+                ));
             }
             for rec in body.chunks_exact(stride).take(count) {
                 let mut off = 0;
@@ -176,7 +209,9 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
                     vals[j] = read_scalar(t, &rec[off..], enc);
                     off += sizes[j];
                 }
-                cloud.points.push([vals[ix] as f32, vals[iy] as f32, vals[iz] as f32]);
+                cloud
+                    .points
+                    .push([vals[ix] as f32, vals[iy] as f32, vals[iz] as f32]);
                 cloud.confidence.push(ic.map_or(1.0, |c| vals[c] as f32));
             }
         }
@@ -191,7 +226,11 @@ mod tests {
     #[test]
     fn binary_round_trip_and_ascii_double_input() {
         let dir = tempfile::tempdir().expect("tempdir");
-        let cloud = PointCloud { points: vec![[1.0, 2.0, 3.0], [-4.5, 0.25, 1e3]], confidence: vec![0.5, 1.0], pixels: vec![] };
+        let cloud = PointCloud {
+            points: vec![[1.0, 2.0, 3.0], [-4.5, 0.25, 1e3]],
+            confidence: vec![0.5, 1.0],
+            pixels: vec![],
+        };
         let p = dir.path().join("a.ply");
         cloud.write_ply(&p).expect("write");
         assert_eq!(PointCloud::read_ply(&p).expect("read"), cloud);
@@ -200,6 +239,9 @@ mod tests {
         let back = PointCloud::read_ply(&q).expect("ascii");
         assert_eq!(back.points, vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
         std::fs::write(&q, "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n").expect("write");
-        assert!(PointCloud::read_ply(&q).expect_err("truncated").to_string().contains("b.ply"));
+        assert!(PointCloud::read_ply(&q)
+            .expect_err("truncated")
+            .to_string()
+            .contains("b.ply"));
     }
 }

@@ -26,7 +26,13 @@ pub struct Distortion {
 impl Distortion {
     /// From OpenCV order `[k1, k2, p1, p2, k3]`.
     pub fn from_array(d: [f64; 5]) -> Self {
-        Distortion { k1: d[0], k2: d[1], p1: d[2], p2: d[3], k3: d[4] }
+        Distortion {
+            k1: d[0],
+            k2: d[1],
+            p1: d[2],
+            p2: d[3],
+            k3: d[4],
+        }
     }
 
     /// As OpenCV order `[k1, k2, p1, p2, k3]`.
@@ -112,7 +118,10 @@ impl Pinhole {
             return None;
         }
         let (x, y) = self.dist.distort(c.x / c.z, c.y / c.z);
-        Some((self.k[(0, 0)] * x + self.k[(0, 1)] * y + self.k[(0, 2)], self.k[(1, 1)] * y + self.k[(1, 2)]))
+        Some((
+            self.k[(0, 0)] * x + self.k[(0, 1)] * y + self.k[(0, 2)],
+            self.k[(1, 1)] * y + self.k[(1, 2)],
+        ))
     }
 
     /// Undistorted normalized coordinates of pixel (u, v).
@@ -182,7 +191,10 @@ mod tests {
         for &(x, y) in &[(0.0, 0.0), (0.3, -0.2), (-0.5, 0.4), (0.1, 0.6)] {
             let (xd, yd) = d.distort(x, y);
             let (xu, yu) = d.undistort(xd, yd);
-            assert!((xu - x).abs() < 1e-10 && (yu - y).abs() < 1e-10, "({x},{y}) -> ({xu},{yu})");
+            assert!(
+                (xu - x).abs() < 1e-10 && (yu - y).abs() < 1e-10,
+                "({x},{y}) -> ({xu},{yu})"
+            );
         }
     }
 
@@ -208,7 +220,13 @@ mod tests {
 
     #[test]
     fn closest_point_of_skew_lines() {
-        let (alpha, gap) = closest_on_first(&Vec3::zeros(), &Vec3::x(), &Vec3::new(2.0, 0.0, 1.0), &Vec3::y()).expect("skew");
+        let (alpha, gap) = closest_on_first(
+            &Vec3::zeros(),
+            &Vec3::x(),
+            &Vec3::new(2.0, 0.0, 1.0),
+            &Vec3::y(),
+        )
+        .expect("skew");
         assert!((alpha - 2.0).abs() < 1e-12 && (gap - 1.0).abs() < 1e-12);
     }
 }

@@ -50,13 +50,21 @@ impl GrayImage {
     /// An 8-bit image from row-major samples.
     pub fn from_u8(width: u32, height: u32, data: Vec<u8>) -> Self {
         debug_assert_eq!(data.len(), (width * height) as usize);
-        GrayImage { width, height, pixels: Pixels::U8(data) }
+        GrayImage {
+            width,
+            height,
+            pixels: Pixels::U8(data),
+        }
     }
 
     /// A 16-bit image from row-major samples.
     pub fn from_u16(width: u32, height: u32, data: Vec<u16>) -> Self {
         debug_assert_eq!(data.len(), (width * height) as usize);
-        GrayImage { width, height, pixels: Pixels::U16(data) }
+        GrayImage {
+            width,
+            height,
+            pixels: Pixels::U16(data),
+        }
     }
 
     /// Bits per sample (8 or 16).
@@ -112,13 +120,23 @@ impl GrayImage {
         let enc = image::codecs::png::PngEncoder::new(&mut buf);
         use image::ImageEncoder;
         let res = match &self.pixels {
-            Pixels::U8(v) => enc.write_image(v, self.width, self.height, image::ExtendedColorType::L8),
+            Pixels::U8(v) => {
+                enc.write_image(v, self.width, self.height, image::ExtendedColorType::L8)
+            }
             Pixels::U16(v) => {
                 let bytes: Vec<u8> = v.iter().flat_map(|p| p.to_ne_bytes()).collect();
-                enc.write_image(&bytes, self.width, self.height, image::ExtendedColorType::L16)
+                enc.write_image(
+                    &bytes,
+                    self.width,
+                    self.height,
+                    image::ExtendedColorType::L16,
+                )
             }
         };
-        res.map_err(|e| Error::Image { path: path.to_path_buf(), message: e.to_string() })?;
+        res.map_err(|e| Error::Image {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
         write_atomic(path, &buf)
     }
 }
@@ -129,7 +147,10 @@ pub fn save_rgb_png(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<
     use image::ImageEncoder;
     image::codecs::png::PngEncoder::new(&mut buf)
         .write_image(rgb, width, height, image::ExtendedColorType::Rgb8)
-        .map_err(|e| Error::Image { path: path.to_path_buf(), message: e.to_string() })?;
+        .map_err(|e| Error::Image {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
     write_atomic(path, &buf)
 }
 

@@ -6,11 +6,19 @@ use std::path::{Path, PathBuf};
 use ris_core::capture::CaptureSet;
 use ris_core::decode::{decode, DecodeParams};
 use ris_core::io::opencv::FileStorage;
-use ris_core::sensor::{CameraSection, ModelChoice, ProjectorSection, Reconstructor, Sensor, SensorFile};
+use ris_core::sensor::{
+    CameraSection, ModelChoice, ProjectorSection, Reconstructor, Sensor, SensorFile,
+};
 
 fn data(dir: &str) -> PathBuf {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data").join(dir);
-    assert!(p.is_dir(), "shared test data missing: {} (the repository expects shared/ beside it)", p.display());
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/data")
+        .join(dir);
+    assert!(
+        p.is_dir(),
+        "shared test data missing: {} (the repository expects shared/ beside it)",
+        p.display()
+    );
     p
 }
 
@@ -79,7 +87,14 @@ fn procam_chessboard_is_planar_with_subpixel_decoding() {
     let identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
     let t = cal.vector::<3>("translation").expect("T");
     let file = SensorFile {
-        camera: CameraSection { width: 1280, height: 1024, k: cal.mat3("cam_int").expect("K"), dist: cal.vector::<5>("cam_dist").expect("dist"), r: identity, t: [0.0; 3] },
+        camera: CameraSection {
+            width: 1280,
+            height: 1024,
+            k: cal.mat3("cam_int").expect("K"),
+            dist: cal.vector::<5>("cam_dist").expect("dist"),
+            r: identity,
+            t: [0.0; 3],
+        },
         projector: ProjectorSection {
             width: 1920,
             height: 1080,
@@ -102,7 +117,12 @@ fn procam_chessboard_is_planar_with_subpixel_decoding() {
     // Hull of the 9x7 inner corners in graycode_40.png, as cv2.findChessboardCorners reports
     // them (322.4, 271.0), (884.4, 271.6), (883.6, 695.1), (312.7, 690.5). Until RIS has its own
     // chessboard detector (calibration issue) the four outer corners are given here.
-    let hull = [(322.4, 271.0), (884.4, 271.6), (883.6, 695.1), (312.7, 690.5)];
+    let hull = [
+        (322.4, 271.0),
+        (884.4, 271.6),
+        (883.6, 695.1),
+        (312.7, 690.5),
+    ];
     let pts: Vec<[f64; 3]> = cloud
         .points
         .iter()
@@ -111,8 +131,15 @@ fn procam_chessboard_is_planar_with_subpixel_decoding() {
         .map(|(p, _)| [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])])
         .collect();
     let rms = plane_rms(&pts);
-    eprintln!("procam: {} points in the board, plane RMS {rms:.3} (integer decoding: 3.1)", pts.len());
-    assert!(pts.len() >= 90_000, "only {} points inside the board", pts.len());
+    eprintln!(
+        "procam: {} points in the board, plane RMS {rms:.3} (integer decoding: 3.1)",
+        pts.len()
+    );
+    assert!(
+        pts.len() >= 90_000,
+        "only {} points inside the board",
+        pts.len()
+    );
     assert!(rms <= 1.6, "plane RMS {rms}");
 }
 
@@ -128,7 +155,9 @@ fn mat_double(path: &Path, name: &str) -> (Vec<usize>, Vec<f64>) {
         off += 8 + if ty == 15 { size } else { size.div_ceil(8) * 8 };
         let matrix = if ty == 15 {
             let mut out = Vec::new();
-            flate2::read::ZlibDecoder::new(body).read_to_end(&mut out).expect("inflate");
+            flate2::read::ZlibDecoder::new(body)
+                .read_to_end(&mut out)
+                .expect("inflate");
             out
         } else {
             continue;
@@ -152,14 +181,20 @@ fn mat_double(path: &Path, name: &str) -> (Vec<usize>, Vec<f64>) {
         };
         let _flags = read_el(&matrix);
         let (_, dims) = read_el(&matrix);
-        let dims: Vec<usize> = dims.chunks_exact(4).map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]]) as usize).collect();
+        let dims: Vec<usize> = dims
+            .chunks_exact(4)
+            .map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]]) as usize)
+            .collect();
         let (_, n) = read_el(&matrix);
         if String::from_utf8_lossy(&n) != name {
             continue;
         }
         let (ty, real) = read_el(&matrix);
         assert_eq!(ty, 9, "{name} must be stored as miDOUBLE");
-        let vals = real.chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes"))).collect();
+        let vals = real
+            .chunks_exact(8)
+            .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
+            .collect();
         return (dims, vals);
     }
     panic!("{name} not found in {}", path.display());
@@ -180,8 +215,23 @@ fn slstudio_skull_matches_reference_cloud() {
     let kc = cal.mat3("Kc").expect("Kc");
     // SLStudio ignores the projector distortion when triangulating; so do we, to compare.
     let file = SensorFile {
-        camera: CameraSection { width: 1688, height: 1352, k: kc, dist: cal.vector::<5>("kc").expect("kc"), r: identity, t: [0.0; 3] },
-        projector: ProjectorSection { width: 1824, height: 1140, center: None, k: Some(cal.mat3("Kp").expect("Kp")), dist: Some([0.0; 5]), r: Some(cal.mat3("Rp").expect("Rp")), t: Some(cal.vector::<3>("Tp").expect("Tp")) },
+        camera: CameraSection {
+            width: 1688,
+            height: 1352,
+            k: kc,
+            dist: cal.vector::<5>("kc").expect("kc"),
+            r: identity,
+            t: [0.0; 3],
+        },
+        projector: ProjectorSection {
+            width: 1824,
+            height: 1140,
+            center: None,
+            k: Some(cal.mat3("Kp").expect("Kp")),
+            dist: Some([0.0; 5]),
+            r: Some(cal.mat3("Rp").expect("Rp")),
+            t: Some(cal.vector::<3>("Tp").expect("Tp")),
+        },
         reference: None,
         residual: None,
         to_common: None,
@@ -190,8 +240,14 @@ fn slstudio_skull_matches_reference_cloud() {
     let capture = CaptureSet::load(tmp.path()).expect("capture");
     let params = DecodeParams::default();
     let decoded = decode(&capture, &params).expect("decode");
-    assert_eq!(decoded.binarization, ris_core::decode::Binarization::Threshold);
-    let cloud = Reconstructor::new(&sensor, ModelChoice::Classical, &params).expect("classical").reconstruct(&decoded).expect("reconstruct");
+    assert_eq!(
+        decoded.binarization,
+        ris_core::decode::Binarization::Threshold
+    );
+    let cloud = Reconstructor::new(&sensor, ModelChoice::Classical, &params)
+        .expect("classical")
+        .reconstruct(&decoded)
+        .expect("reconstruct");
 
     let (dims, xyz) = mat_double(&src.join("pointCloud.mat"), "xyz");
     let (h, w) = (dims[0], dims[1]);
@@ -216,7 +272,9 @@ fn slstudio_skull_matches_reference_cloud() {
             if valid[r * w + c] {
                 if let Some(l) = last {
                     if c - l <= 9 {
-                        region[r * w + l..r * w + c].iter_mut().for_each(|v| *v = true);
+                        region[r * w + l..r * w + c]
+                            .iter_mut()
+                            .for_each(|v| *v = true);
                     }
                 }
                 last = Some(c);
@@ -224,28 +282,62 @@ fn slstudio_skull_matches_reference_cloud() {
         }
     }
     // Nearest reference point by a 1 mm hash grid.
-    let key = |p: &[f64; 3]| ((p[0].floor() as i64), (p[1].floor() as i64), (p[2].floor() as i64));
-    let mut grid: std::collections::HashMap<(i64, i64, i64), Vec<[f64; 3]>> = std::collections::HashMap::new();
+    let key = |p: &[f64; 3]| {
+        (
+            (p[0].floor() as i64),
+            (p[1].floor() as i64),
+            (p[2].floor() as i64),
+        )
+    };
+    let mut grid: std::collections::HashMap<(i64, i64, i64), Vec<[f64; 3]>> =
+        std::collections::HashMap::new();
     for p in &reference {
         grid.entry(key(p)).or_default().push(*p);
     }
     let near = |p: &[f64; 3]| {
         let (x, y, z) = key(p);
-        (-1..=1).any(|dx| (-1..=1).any(|dy| (-1..=1).any(|dz| grid.get(&(x + dx, y + dy, z + dz)).is_some_and(|v| v.iter().any(|q| (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>() <= 1.0)))))
+        (-1..=1).any(|dx| {
+            (-1..=1).any(|dy| {
+                (-1..=1).any(|dz| {
+                    grid.get(&(x + dx, y + dy, z + dz)).is_some_and(|v| {
+                        v.iter()
+                            .any(|q| (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>() <= 1.0)
+                    })
+                })
+            })
+        })
     };
     let (fx, fy, cx, cy) = (kc[0][0], kc[1][1], kc[0][2], kc[1][2]);
     let (mut inside, mut close) = (0usize, 0usize);
     for p in &cloud.points {
         let p = [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])];
-        let (c, r) = ((fx * p[0] / p[2] + cx).round(), (fy * p[1] / p[2] + cy).round());
-        if c < 0.0 || r < 0.0 || c >= w as f64 || r >= h as f64 || !region[r as usize * w + c as usize] {
+        let (c, r) = (
+            (fx * p[0] / p[2] + cx).round(),
+            (fy * p[1] / p[2] + cy).round(),
+        );
+        if c < 0.0
+            || r < 0.0
+            || c >= w as f64
+            || r >= h as f64
+            || !region[r as usize * w + c as usize]
+        {
             continue;
         }
         inside += 1;
         close += usize::from(near(&p));
     }
     let frac = close as f64 / inside.max(1) as f64;
-    eprintln!("slstudio: {} points, {inside} inside its region ({:.1}x its {}), {:.2} % within 1 mm", cloud.len(), inside as f64 / reference.len() as f64, reference.len(), 100.0 * frac);
+    eprintln!(
+        "slstudio: {} points, {inside} inside its region ({:.1}x its {}), {:.2} % within 1 mm",
+        cloud.len(),
+        inside as f64 / reference.len() as f64,
+        reference.len(),
+        100.0 * frac
+    );
     assert!(frac >= 0.97, "{:.2} % within 1 mm", 100.0 * frac);
-    assert!(inside >= 3 * reference.len(), "{inside} points vs {} reference points", reference.len());
+    assert!(
+        inside >= 3 * reference.len(),
+        "{inside} points vs {} reference points",
+        reference.len()
+    );
 }

@@ -22,19 +22,34 @@ fn demo_scene_parallax_accuracy() {
     let reference = Simulator::new(scene.reference()).capture(&layout, 1000, &|_, _| {});
     eprintln!("render {:?}", t0.elapsed());
     let mut params = DecodeParams::default();
-    if let Ok(v) = std::env::var("RIS_WINDOW") { params.edge_window = v.parse().expect("window"); }
-    if let Ok(v) = std::env::var("RIS_CELLTOL") { params.cell_tolerance = v.parse().expect("tol"); }
-    if std::env::var("RIS_EXTRAP").is_ok() { params.extrapolate = true; }
-    if let Ok(v) = std::env::var("RIS_EROSION") { params.edge_erosion = v.parse().expect("erosion"); }
-    if let Ok(v) = std::env::var("RIS_POWER") { params.albedo_weight_power = v.parse().expect("power"); }
+    if let Ok(v) = std::env::var("RIS_WINDOW") {
+        params.edge_window = v.parse().expect("window");
+    }
+    if let Ok(v) = std::env::var("RIS_CELLTOL") {
+        params.cell_tolerance = v.parse().expect("tol");
+    }
+    if std::env::var("RIS_EXTRAP").is_ok() {
+        params.extrapolate = true;
+    }
+    if let Ok(v) = std::env::var("RIS_EROSION") {
+        params.edge_erosion = v.parse().expect("erosion");
+    }
+    if let Ok(v) = std::env::var("RIS_POWER") {
+        params.albedo_weight_power = v.parse().expect("power");
+    }
     let dec = decode(&capture, &params).expect("decode");
     let dec_ref = decode(&reference, &params).expect("decode ref");
-    let rec = Reconstructor::parallax(&scene.camera, scene.projector.center(), &dec_ref).expect("model");
+    let rec =
+        Reconstructor::parallax(&scene.camera, scene.projector.center(), &dec_ref).expect("model");
     let cloud = rec.reconstruct(&dec).expect("reconstruct");
     let acc = evaluate(&cloud, &sim.cache.truth, 0.999);
     eprintln!("parallax: {acc}");
     let rec_c = Reconstructor::classical(&scene.camera, &scene.projector);
-    let acc_c = evaluate(&rec_c.reconstruct(&dec).expect("classical"), &sim.cache.truth, 0.999);
+    let acc_c = evaluate(
+        &rec_c.reconstruct(&dec).expect("classical"),
+        &sim.cache.truth,
+        0.999,
+    );
     eprintln!("classical: {acc_c}");
     assert!(acc.completeness >= 0.97, "{acc}");
     assert!(acc.mean_abs_error_mm <= 0.06, "{acc}");
@@ -46,7 +61,9 @@ fn demo_scene_parallax_accuracy() {
 #[test]
 #[ignore = "diagnostic: writes error maps to $RIS_DUMP"]
 fn dump() {
-    let Ok(dir) = std::env::var("RIS_DUMP") else { return };
+    let Ok(dir) = std::env::var("RIS_DUMP") else {
+        return;
+    };
     let dir = Path::new(&dir);
     let scene = demo_scene();
     let sim = Simulator::new(scene.clone());
@@ -54,12 +71,15 @@ fn dump() {
     let capture = sim.capture(&layout, 0, &|_, _| {});
     let reference = Simulator::new(scene.reference()).capture(&layout, 1000, &|_, _| {});
     let mut params = DecodeParams::default();
-    if let Ok(v) = std::env::var("RIS_EROSION") { params.edge_erosion = v.parse().expect("erosion"); }
+    if let Ok(v) = std::env::var("RIS_EROSION") {
+        params.edge_erosion = v.parse().expect("erosion");
+    }
     let dec = decode(&capture, &params).expect("decode");
     let dec_ref = decode(&reference, &params).expect("decode ref");
     dec.save(&dir.join("dec")).expect("save");
     dec_ref.save(&dir.join("ref")).expect("save");
-    let rec = Reconstructor::parallax(&scene.camera, scene.projector.center(), &dec_ref).expect("model");
+    let rec =
+        Reconstructor::parallax(&scene.camera, scene.projector.center(), &dec_ref).expect("model");
     let cloud = rec.reconstruct(&dec).expect("reconstruct");
     let mut dense = vec![f32::NAN; dec.col.len() * 3];
     for (p, &i) in cloud.points.iter().zip(&cloud.pixels) {

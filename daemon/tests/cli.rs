@@ -4,7 +4,11 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 fn ris(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_ris")).args(args).env("RIS_LOG", "warn").output().expect("run ris")
+    Command::new(env!("CARGO_BIN_EXE_ris"))
+        .args(args)
+        .env("RIS_LOG", "warn")
+        .output()
+        .expect("run ris")
 }
 
 fn stderr(o: &Output) -> String {
@@ -44,7 +48,13 @@ fn simulated(dir: &Path) -> PathBuf {
     let scene = dir.join("scene.toml");
     std::fs::write(&scene, SCENE).expect("write scene");
     let out = dir.join("sim");
-    let o = ris(&["simulate", "--scene", scene.to_str().expect("utf8"), "--out", out.to_str().expect("utf8")]);
+    let o = ris(&[
+        "simulate",
+        "--scene",
+        scene.to_str().expect("utf8"),
+        "--out",
+        out.to_str().expect("utf8"),
+    ]);
     assert!(o.status.success(), "simulate failed: {}", stderr(&o));
     out
 }
@@ -57,10 +67,21 @@ fn s(p: &Path) -> &str {
 fn patterns_writes_the_full_sequence() {
     let dir = tempfile::tempdir().expect("tempdir");
     let out = dir.path().join("p");
-    let o = ris(&["patterns", "--projector", "64x32", "--flats", "--out", s(&out)]);
+    let o = ris(&[
+        "patterns",
+        "--projector",
+        "64x32",
+        "--flats",
+        "--out",
+        s(&out),
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let n = std::fs::read_dir(&out).expect("dir").count();
-    assert_eq!(n, 2 + 2 * (6 + 5) + 6, "white, black, 6 column and 5 row bits with inverses, 6 flats");
+    assert_eq!(
+        n,
+        2 + 2 * (6 + 5) + 6,
+        "white, black, 6 column and 5 row bits with inverses, 6 flats"
+    );
     let img = ris_core::image::GrayImage::load(&out.join("gray_col_05.png")).expect("png");
     assert_eq!((img.width, img.height), (64, 32));
     let o = ris(&["patterns", "--projector", "64by32", "--out", s(&out)]);
@@ -78,23 +99,55 @@ fn simulate_decode_reconstruct_round_trip() {
         assert!(dec.join(f).is_file(), "{f} missing");
     }
     let cloud = dir.path().join("cloud.ply");
-    let o = ris(&["reconstruct", "--sensor", s(&sim.join("sensor.toml")), s(&sim.join("capture")), "--out", s(&cloud)]);
+    let o = ris(&[
+        "reconstruct",
+        "--sensor",
+        s(&sim.join("sensor.toml")),
+        s(&sim.join("capture")),
+        "--out",
+        s(&cloud),
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let pc = ris_core::cloud::PointCloud::read_ply(&cloud).expect("ply");
     assert!(pc.len() > 10_000, "{} points", pc.len());
     // The box top (z = 100) and the plane (z = 0) are both there, nothing else.
-    let top = pc.points.iter().filter(|p| (p[2] - 100.0).abs() < 1.0).count();
+    let top = pc
+        .points
+        .iter()
+        .filter(|p| (p[2] - 100.0).abs() < 1.0)
+        .count();
     let floor = pc.points.iter().filter(|p| p[2].abs() < 1.0).count();
     assert!(top > 1000 && floor > 10_000, "top {top}, floor {floor}");
     assert!(top + floor >= pc.len() * 99 / 100, "stray points");
     // Both models from the same sensor file agree.
     let cloud2 = dir.path().join("classical.ply");
-    let o = ris(&["reconstruct", "--model", "classical", "--sensor", s(&sim.join("sensor.toml")), s(&sim.join("capture")), "--out", s(&cloud2)]);
+    let o = ris(&[
+        "reconstruct",
+        "--model",
+        "classical",
+        "--sensor",
+        s(&sim.join("sensor.toml")),
+        s(&sim.join("capture")),
+        "--out",
+        s(&cloud2),
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let pc2 = ris_core::cloud::PointCloud::read_ply(&cloud2).expect("ply");
-    let on_surfaces = pc2.points.iter().filter(|p| (p[2] - 100.0).abs() < 1.0 || p[2].abs() < 1.0).count();
-    assert!(pc2.len() > pc.len() * 9 / 10, "classical {} vs parallax {} points", pc2.len(), pc.len());
-    assert!(on_surfaces >= pc2.len() * 99 / 100, "classical stray points");
+    let on_surfaces = pc2
+        .points
+        .iter()
+        .filter(|p| (p[2] - 100.0).abs() < 1.0 || p[2].abs() < 1.0)
+        .count();
+    assert!(
+        pc2.len() > pc.len() * 9 / 10,
+        "classical {} vs parallax {} points",
+        pc2.len(),
+        pc.len()
+    );
+    assert!(
+        on_surfaces >= pc2.len() * 99 / 100,
+        "classical stray points"
+    );
 }
 
 /// Run `args`, expect failure with every `needles` in stderr and `out` not created.
@@ -106,7 +159,11 @@ fn fails(args: &[&str], needles: &[&str], out: &Path) {
         assert!(err.contains(n), "stderr should mention `{n}`: {err}");
     }
     assert!(!err.contains("panicked"), "panic: {err}");
-    assert!(!out.exists(), "{} was written despite the error", out.display());
+    assert!(
+        !out.exists(),
+        "{} was written despite the error",
+        out.display()
+    );
 }
 
 #[test]
@@ -122,46 +179,106 @@ fn bad_input_gives_clear_errors_and_no_output() {
     let bad = dir.path().join("missing");
     copy_dir(&cap, &bad);
     std::fs::remove_file(bad.join("gray_col_03.png")).expect("rm");
-    fails(&["decode", s(&bad), "--out", s(&dec_out)], &["gray_col_03.png", "frames.gray_col_03"], &dec_out);
-    fails(&["reconstruct", "--sensor", s(&sensor), s(&bad), "--out", s(&out)], &["gray_col_03.png"], &out);
+    fails(
+        &["decode", s(&bad), "--out", s(&dec_out)],
+        &["gray_col_03.png", "frames.gray_col_03"],
+        &dec_out,
+    );
+    fails(
+        &[
+            "reconstruct",
+            "--sensor",
+            s(&sensor),
+            s(&bad),
+            "--out",
+            s(&out),
+        ],
+        &["gray_col_03.png"],
+        &out,
+    );
 
     // Unreadable frame.
     let bad = dir.path().join("unreadable");
     copy_dir(&cap, &bad);
     std::fs::write(bad.join("white.png"), b"garbage").expect("write");
-    fails(&["decode", s(&bad), "--out", s(&dec_out)], &["white.png"], &dec_out);
+    fails(
+        &["decode", s(&bad), "--out", s(&dec_out)],
+        &["white.png"],
+        &dec_out,
+    );
 
     // Size mismatch.
     let bad = dir.path().join("size");
     copy_dir(&cap, &bad);
-    ris_core::image::GrayImage::from_u8(10, 10, vec![0; 100]).save_png(&bad.join("black.png")).expect("png");
-    fails(&["decode", s(&bad), "--out", s(&dec_out)], &["black.png", "10x10", "160x120"], &dec_out);
+    ris_core::image::GrayImage::from_u8(10, 10, vec![0; 100])
+        .save_png(&bad.join("black.png"))
+        .expect("png");
+    fails(
+        &["decode", s(&bad), "--out", s(&dec_out)],
+        &["black.png", "10x10", "160x120"],
+        &dec_out,
+    );
 
     // Unknown pattern in [frames].
     let bad = dir.path().join("unknown");
     copy_dir(&cap, &bad);
-    append(&bad.join("capture.toml"), "\n[frames]\nstripes_07 = \"white.png\"\n");
-    fails(&["decode", s(&bad), "--out", s(&dec_out)], &["frames.stripes_07", "capture.toml"], &dec_out);
+    append(
+        &bad.join("capture.toml"),
+        "\n[frames]\nstripes_07 = \"white.png\"\n",
+    );
+    fails(
+        &["decode", s(&bad), "--out", s(&dec_out)],
+        &["frames.stripes_07", "capture.toml"],
+        &dec_out,
+    );
 
     // Malformed TOML.
     let bad = dir.path().join("malformed");
     copy_dir(&cap, &bad);
     append(&bad.join("capture.toml"), "\n[camera\n");
-    fails(&["decode", s(&bad), "--out", s(&dec_out)], &["capture.toml"], &dec_out);
+    fails(
+        &["decode", s(&bad), "--out", s(&dec_out)],
+        &["capture.toml"],
+        &dec_out,
+    );
 
     // NaN in a matrix of the sensor file.
     let text = std::fs::read_to_string(&sensor).expect("sensor");
     let nan_sensor = sim.join("nan_sensor.toml");
-    assert!(text.contains("k = [[190.0,"), "sensor file layout changed: {text}");
+    assert!(
+        text.contains("k = [[190.0,"),
+        "sensor file layout changed: {text}"
+    );
     std::fs::write(&nan_sensor, text.replacen("k = [[190.0,", "k = [[nan,", 1)).expect("write");
-    let o = ris(&["reconstruct", "--sensor", s(&nan_sensor), s(&cap), "--out", s(&out)]);
+    let o = ris(&[
+        "reconstruct",
+        "--sensor",
+        s(&nan_sensor),
+        s(&cap),
+        "--out",
+        s(&out),
+    ]);
     assert!(!o.status.success());
     let err = stderr(&o);
-    assert!(err.contains("nan_sensor.toml") && err.contains("camera.k[0]") && err.contains("NaN"), "{err}");
+    assert!(
+        err.contains("nan_sensor.toml") && err.contains("camera.k[0]") && err.contains("NaN"),
+        "{err}"
+    );
     assert!(!out.exists());
 
     // A missing sensor file.
-    fails(&["reconstruct", "--sensor", s(&dir.path().join("nope.toml")), s(&cap), "--out", s(&out)], &["nope.toml"], &out);
+    fails(
+        &[
+            "reconstruct",
+            "--sensor",
+            s(&dir.path().join("nope.toml")),
+            s(&cap),
+            "--out",
+            s(&out),
+        ],
+        &["nope.toml"],
+        &out,
+    );
 }
 
 fn copy_dir(from: &Path, to: &Path) {

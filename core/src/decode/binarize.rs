@@ -14,6 +14,7 @@ pub(super) struct Thresholds {
 
 /// Integer code cell per pixel (row-major), −1 where invalid: contrast below threshold, a bit
 /// undecidable, or a code beyond the projector's cells.
+#[allow(clippy::too_many_arguments)] // the planes of one axis, passed flat for the hot loop
 pub(super) fn codes<T: Sample>(
     w: usize,
     h: usize,
@@ -58,7 +59,11 @@ pub(super) fn codes<T: Sample>(
             for x in 0..w {
                 let contrast = wh[x].to_i32() - bl[x].to_i32();
                 let code = gray_to_binary(row[x] as u32);
-                row[x] = if contrast > th.contrast && !undecided[x] && code < cells { code as i32 } else { -1 };
+                row[x] = if contrast > th.contrast && !undecided[x] && code < cells {
+                    code as i32
+                } else {
+                    -1
+                };
             }
         },
     );

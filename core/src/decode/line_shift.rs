@@ -116,42 +116,83 @@ pub(super) fn subpixel<T: Sample>(
     let mut quality = vec![0f32; w * h];
     match dir {
         ScanDirection::AlongRows => {
-            coord.par_chunks_mut(w).zip(quality.par_chunks_mut(w)).enumerate().for_each_init(Vec::new, |edges, (y, (out, q))| {
-                let line = Line { start: y * w, stride: 1, len: w };
-                edges.clear();
-                let mut chain = ChainState::default();
-                for n in 0..w.saturating_sub(1) {
-                    gap_edges(y * w + n, y * w + n + 1, n, codes, signal, &code, &mut chain, edges);
-                }
-                fit_runs(line, codes, &code, edges, out, q);
-            });
+            coord
+                .par_chunks_mut(w)
+                .zip(quality.par_chunks_mut(w))
+                .enumerate()
+                .for_each_init(Vec::new, |edges, (y, (out, q))| {
+                    let line = Line {
+                        start: y * w,
+                        stride: 1,
+                        len: w,
+                    };
+                    edges.clear();
+                    let mut chain = ChainState::default();
+                    for n in 0..w.saturating_sub(1) {
+                        gap_edges(
+                            y * w + n,
+                            y * w + n + 1,
+                            n,
+                            codes,
+                            signal,
+                            &code,
+                            &mut chain,
+                            edges,
+                        );
+                    }
+                    fit_runs(line, codes, &code, edges, out, q);
+                });
         }
         ScanDirection::AlongColumns => {
             // Phase 2 reads each column's codes contiguously from a transposed copy.
             let codes_t = super::transpose(codes, w, h);
-            coord.par_chunks_mut(BLOCK * h).zip(quality.par_chunks_mut(BLOCK * h)).enumerate().for_each_init(
-                || (vec![Vec::new(); BLOCK], vec![ChainState::default(); BLOCK]),
-                |(edges, chains), (b, (out, q))| {
-                    let x0 = b * BLOCK;
-                    let bw = out.len() / h;
-                    for x in 0..bw {
-                        edges[x].clear();
-                        chains[x] = ChainState::default();
-                    }
-                    // Phase 1, row-major inside the block: every vertical gap of every column.
-                    for y in 0..h.saturating_sub(1) {
+            coord
+                .par_chunks_mut(BLOCK * h)
+                .zip(quality.par_chunks_mut(BLOCK * h))
+                .enumerate()
+                .for_each_init(
+                    || (vec![Vec::new(); BLOCK], vec![ChainState::default(); BLOCK]),
+                    |(edges, chains), (b, (out, q))| {
+                        let x0 = b * BLOCK;
+                        let bw = out.len() / h;
                         for x in 0..bw {
-                            let i0 = y * w + x0 + x;
-                            gap_edges(i0, i0 + w, y, codes, signal, &code, &mut chains[x], &mut edges[x]);
+                            edges[x].clear();
+                            chains[x] = ChainState::default();
                         }
-                    }
-                    // Phase 2, per column: runs and line fits into this column's output row.
-                    for x in 0..bw {
-                        let line = Line { start: (x0 + x) * h, stride: 1, len: h };
-                        fit_runs(line, &codes_t, &code, &edges[x], &mut out[x * h..(x + 1) * h], &mut q[x * h..(x + 1) * h]);
-                    }
-                },
-            );
+                        // Phase 1, row-major inside the block: every vertical gap of every column.
+                        for y in 0..h.saturating_sub(1) {
+                            for x in 0..bw {
+                                let i0 = y * w + x0 + x;
+                                gap_edges(
+                                    i0,
+                                    i0 + w,
+                                    y,
+                                    codes,
+                                    signal,
+                                    &code,
+                                    &mut chains[x],
+                                    &mut edges[x],
+                                );
+                            }
+                        }
+                        // Phase 2, per column: runs and line fits into this column's output row.
+                        for x in 0..bw {
+                            let line = Line {
+                                start: (x0 + x) * h,
+                                stride: 1,
+                                len: h,
+                            };
+                            fit_runs(
+                                line,
+                                &codes_t,
+                                &code,
+                                &edges[x],
+                                &mut out[x * h..(x + 1) * h],
+                                &mut q[x * h..(x + 1) * h],
+                            );
+                        }
+                    },
+                );
         }
     }
     (coord, quality)
@@ -167,7 +208,14 @@ struct ChainState {
 }
 
 /// Assign sub-pixel values to every run of equal code along the line from its edges.
-fn fit_runs(line: Line, codes: &[i32], code: &Code, edges: &[Edge], out: &mut [f32], quality: &mut [f32]) {
+fn fit_runs(
+    line: Line,
+    codes: &[i32],
+    code: &Code,
+    edges: &[Edge],
+    out: &mut [f32],
+    quality: &mut [f32],
+) {
     let at = |n: usize| line.start + n * line.stride;
     let mut n = 0usize;
     let mut e_idx = 0usize;
@@ -190,7 +238,10 @@ fn fit_runs(line: Line, codes: &[i32], code: &Code, edges: &[Edge], out: &mut [f
         let bounds = |edge: &Edge| edge.boundary == c || edge.boundary == c + 1;
         // The edge of the gap before `a` that bounds cell c (the last such), and the one after `e`.
         let left = if a > 0 {
-            let k = edges[e_idx..].iter().take_while(|ed| ed.gap as usize == a - 1).count();
+            let k = edges[e_idx..]
+                .iter()
+                .take_while(|ed| ed.gap as usize == a - 1)
+                .count();
             (e_idx..e_idx + k).rev().find(|&j| bounds(&edges[j]))
         } else {
             None
@@ -199,11 +250,21 @@ fn fit_runs(line: Line, codes: &[i32], code: &Code, edges: &[Edge], out: &mut [f
         while r_idx < edges.len() && (edges[r_idx].gap as usize) < e {
             r_idx += 1;
         }
-        let right = edges[r_idx..].iter().take_while(|ed| ed.gap as usize == e).position(bounds).map(|k| r_idx + k);
+        let right = edges[r_idx..]
+            .iter()
+            .take_while(|ed| ed.gap as usize == e)
+            .position(bounds)
+            .map(|k| r_idx + k);
         let (lo, hi) = (code.step * c as f32 - 0.5, code.step * (c + 1) as f32 - 0.5);
         let (first, last, q) = match (left, right) {
-            (Some(l), Some(r)) if edges[l].chain == edges[r].chain && edges[l].boundary != edges[r].boundary => {
-                (widen_down(edges, l, code.window - 1), widen_up(edges, r, code.window - 1), 1.0)
+            (Some(l), Some(r))
+                if edges[l].chain == edges[r].chain && edges[l].boundary != edges[r].boundary =>
+            {
+                (
+                    widen_down(edges, l, code.window - 1),
+                    widen_up(edges, r, code.window - 1),
+                    1.0,
+                )
             }
             (Some(l), _) => (widen_down(edges, l, code.window.max(2) - 1), l, 0.5),
             (None, Some(r)) => (r, widen_up(edges, r, code.window.max(2) - 1), 0.5),
@@ -212,7 +273,9 @@ fn fit_runs(line: Line, codes: &[i32], code: &Code, edges: &[Edge], out: &mut [f
         if last <= first || (q < 1.0 && !code.extrapolate) {
             continue;
         }
-        let Some((alpha, beta)) = fit_line(&edges[first..=last], code.step) else { continue };
+        let Some((alpha, beta)) = fit_line(&edges[first..=last], code.step) else {
+            continue;
+        };
         // A fitted value well outside the pixel's own code cell means the edges and the code
         // disagree (a mixed pixel): reject rather than clamp.
         let tol = code.cell_tolerance * code.step;
@@ -280,7 +343,16 @@ fn fit_line(edges: &[Edge], step: f32) -> Option<(f32, f32)> {
 /// and the next pixel `i1`, and continue or break the line's chain.
 #[allow(clippy::too_many_arguments)]
 #[inline]
-fn gap_edges<T: Sample>(i0: usize, i1: usize, n: usize, codes: &[i32], signal: &Signal<'_, T>, code: &Code, state: &mut ChainState, edges: &mut Vec<Edge>) {
+fn gap_edges<T: Sample>(
+    i0: usize,
+    i1: usize,
+    n: usize,
+    codes: &[i32],
+    signal: &Signal<'_, T>,
+    code: &Code,
+    state: &mut ChainState,
+    edges: &mut Vec<Edge>,
+) {
     let (c0, c1) = (codes[i0], codes[i1]);
     if c0 < 0 || c1 < 0 {
         state.broken = true;
@@ -313,7 +385,13 @@ fn gap_edges<T: Sample>(i0: usize, i1: usize, n: usize, codes: &[i32], signal: &
         }
         let t = s0 / den;
         if (0.0..=1.0).contains(&t) {
-            edges.push(Edge { gap: n as u32, x: n as f32 + t, boundary: b, chain: 0, weight });
+            edges.push(Edge {
+                gap: n as u32,
+                x: n as f32 + t,
+                boundary: b,
+                chain: 0,
+                weight,
+            });
         }
     }
     if edges.len() == first {
@@ -323,7 +401,13 @@ fn gap_edges<T: Sample>(i0: usize, i1: usize, n: usize, codes: &[i32], signal: &
     let run = &mut edges[first..];
     if run.len() > 1 {
         // Several boundaries in one gap come out in the order of their codes, monotonic in x.
-        run.sort_by(|p, q| if increasing { p.boundary.cmp(&q.boundary) } else { q.boundary.cmp(&p.boundary) });
+        run.sort_by(|p, q| {
+            if increasing {
+                p.boundary.cmp(&q.boundary)
+            } else {
+                q.boundary.cmp(&p.boundary)
+            }
+        });
         for i in 1..run.len() {
             if run[i].x < run[i - 1].x {
                 let mid = 0.5 * (run[i].x + run[i - 1].x);
@@ -355,11 +439,19 @@ mod tests {
     #[test]
     fn worked_examples_of_eq_4_17() {
         // (pattern, inverse) at n and (pattern, inverse) at n+1, from Ch. 4.5.
-        let cases = [(899.0, 61.0, 34.0, 29.0, 64.0, 899.4), (899.0, 80.0, 28.0, 25.0, 62.0, 899.6), (1293.0, 133.0, 80.0, 83.0, 141.0, 1293.5)];
+        let cases = [
+            (899.0, 61.0, 34.0, 29.0, 64.0, 899.4),
+            (899.0, 80.0, 28.0, 25.0, 62.0, 899.6),
+            (1293.0, 133.0, 80.0, 83.0, 141.0, 1293.5),
+        ];
         for (n, a, b, d, c, want) in cases {
             let x = edge_position(n, a, b, c, d).expect("crossing");
             assert!((x - want).abs() < 0.05, "got {x}, text says {want}");
         }
-        assert_eq!(edge_position(10.0, 50.0, 20.0, 20.0, 50.0), None, "no crossing");
+        assert_eq!(
+            edge_position(10.0, 50.0, 20.0, 20.0, 50.0),
+            None,
+            "no crossing"
+        );
     }
 }

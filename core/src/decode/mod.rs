@@ -63,7 +63,18 @@ pub struct DecodeParams {
 
 impl Default for DecodeParams {
     fn default() -> Self {
-        DecodeParams { contrast_threshold: 12.0, bit_threshold: 0.0, max_jump: 2, edge_window: 3, consistency_cells: 3.0, extrapolate: false, cell_tolerance: 0.25, edge_erosion: 1, cross_smoothing: true, albedo_weight_power: 4 }
+        DecodeParams {
+            contrast_threshold: 12.0,
+            bit_threshold: 0.0,
+            max_jump: 2,
+            edge_window: 3,
+            consistency_cells: 3.0,
+            extrapolate: false,
+            cell_tolerance: 0.25,
+            edge_erosion: 1,
+            cross_smoothing: true,
+            albedo_weight_power: 4,
+        }
     }
 }
 
@@ -145,7 +156,9 @@ impl Decoded {
                 return;
             }
             let value = match &self.row {
-                Some(r) if r[i].is_finite() => 0.75 + 0.25 * ((r[i] / h) * 16.0 * std::f32::consts::TAU).cos(),
+                Some(r) if r[i].is_finite() => {
+                    0.75 + 0.25 * ((r[i] / h) * 16.0 * std::f32::consts::TAU).cos()
+                }
                 _ => 1.0,
             };
             px.copy_from_slice(&hue_to_rgb(c / w, value));
@@ -169,26 +182,38 @@ pub fn hue_to_rgb(t: f32, value: f32) -> [u8; 3] {
     [(r * v) as u8, (g * v) as u8, (b * v) as u8]
 }
 
+/// The frames of one code axis: patterns and inverses (if any), most significant bit first.
+struct AxisFrames<'a, T> {
+    pat: Vec<&'a [T]>,
+    inv: Option<Vec<&'a [T]>>,
+}
+
 /// The frames of one capture as borrowed sample planes of one type.
 struct Planes<'a, T> {
     white: &'a [T],
     black: &'a [T],
-    /// Per axis: pattern frames and inverse frames (if any), MSB first.
-    col: (Vec<&'a [T]>, Option<Vec<&'a [T]>>),
-    row: Option<(Vec<&'a [T]>, Option<Vec<&'a [T]>>)>,
+    col: AxisFrames<'a, T>,
+    row: Option<AxisFrames<'a, T>>,
 }
 
 /// Decode a capture set into continuous projector coordinates.
 pub fn decode(capture: &CaptureSet, params: &DecodeParams) -> Result<Decoded> {
     let need = |p: Pattern| {
-        capture.frame(p).ok_or_else(|| Error::Insufficient(format!("capture has no `{}` frame", p.name())))
+        capture
+            .frame(p)
+            .ok_or_else(|| Error::Insufficient(format!("capture has no `{}` frame", p.name())))
     };
     need(Pattern::White)?;
     need(Pattern::Black)?;
     if !capture.has_code(CodeAxis::Column) {
-        return Err(Error::Insufficient("capture has no complete column code".into()));
+        return Err(Error::Insufficient(
+            "capture has no complete column code".into(),
+        ));
     }
-    let all_u8 = capture.frames.values().all(|f| matches!(f.pixels, Pixels::U8(_)));
+    let all_u8 = capture
+        .frames
+        .values()
+        .all(|f| matches!(f.pixels, Pixels::U8(_)));
     if all_u8 {
         let planes = borrow_planes(capture, |p| match capture.frame(p).map(|f| &f.pixels) {
             Some(Pixels::U8(v)) => Some(v.as_slice()),
@@ -197,8 +222,11 @@ pub fn decode(capture: &CaptureSet, params: &DecodeParams) -> Result<Decoded> {
         Ok(decode_planes(capture, &planes, params, 1.0))
     } else {
         // Mixed or 16-bit: widen everything to 16 bit once.
-        let widened: std::collections::BTreeMap<Pattern, Vec<u16>> =
-            capture.frames.par_iter().map(|(p, img)| (*p, img.to_u16())).collect();
+        let widened: std::collections::BTreeMap<Pattern, Vec<u16>> = capture
+            .frames
+            .par_iter()
+            .map(|(p, img)| (*p, img.to_u16()))
+            .collect();
         let planes = borrow_planes(capture, |p| widened.get(&p).map(|v| v.as_slice()))?;
         Ok(decode_planes(capture, &planes, params, 257.0))
     }
@@ -209,27 +237,56 @@ fn borrow_planes<'a, T>(
     get: impl Fn(Pattern) -> Option<&'a [T]>,
 ) -> Result<Planes<'a, T>> {
     let plane = |p: Pattern| -> Result<&'a [T]> {
-        get(p).ok_or_else(|| Error::Insufficient(format!("capture has no usable `{}` frame", p.name())))
+        get(p).ok_or_else(|| {
+            Error::Insufficient(format!("capture has no usable `{}` frame", p.name()))
+        })
     };
-    let axis_planes = |axis: CodeAxis| -> Result<(Vec<&'a [T]>, Option<Vec<&'a [T]>>)> {
+    let axis_planes = |axis: CodeAxis| -> Result<AxisFrames<'a, T>> {
         let n = capture.layout.bits(axis);
-        let pat = (0..n).map(|bit| plane(Pattern::Gray { axis, bit, inverse: false })).collect::<Result<Vec<_>>>()?;
+        let pat = (0..n)
+            .map(|bit| {
+                plane(Pattern::Gray {
+                    axis,
+                    bit,
+                    inverse: false,
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
         let inv = if capture.has_inverses(axis) {
-            Some((0..n).map(|bit| plane(Pattern::Gray { axis, bit, inverse: true })).collect::<Result<Vec<_>>>()?)
+            Some(
+                (0..n)
+                    .map(|bit| {
+                        plane(Pattern::Gray {
+                            axis,
+                            bit,
+                            inverse: true,
+                        })
+                    })
+                    .collect::<Result<Vec<_>>>()?,
+            )
         } else {
             None
         };
-        Ok((pat, inv))
+        Ok(AxisFrames { pat, inv })
     };
     Ok(Planes {
         white: plane(Pattern::White)?,
         black: plane(Pattern::Black)?,
         col: axis_planes(CodeAxis::Column)?,
-        row: if capture.has_code(CodeAxis::Row) { Some(axis_planes(CodeAxis::Row)?) } else { None },
+        row: if capture.has_code(CodeAxis::Row) {
+            Some(axis_planes(CodeAxis::Row)?)
+        } else {
+            None
+        },
     })
 }
 
-fn decode_planes<T: Sample>(capture: &CaptureSet, planes: &Planes<'_, T>, params: &DecodeParams, scale: f32) -> Decoded {
+fn decode_planes<T: Sample>(
+    capture: &CaptureSet,
+    planes: &Planes<'_, T>,
+    params: &DecodeParams,
+    scale: f32,
+) -> Decoded {
     let (w, h) = (capture.width as usize, capture.height as usize);
     let full_scale = 255.0 * scale;
     let thresholds = binarize::Thresholds {
@@ -237,32 +294,84 @@ fn decode_planes<T: Sample>(capture: &CaptureSet, planes: &Planes<'_, T>, params
         bit: (params.bit_threshold * scale).round() as i32,
     };
     let layout = capture.layout;
-    let run_axis = |axis: CodeAxis, frames: &(Vec<&[T]>, Option<Vec<&[T]>>)| -> (Vec<f32>, Vec<f32>, Binarization) {
+    let run_axis = |axis: CodeAxis,
+                    frames: &AxisFrames<'_, T>|
+     -> (Vec<f32>, Vec<f32>, Binarization) {
         let t0 = std::time::Instant::now();
-        let codes = binarize::codes(w, h, planes.white, planes.black, &frames.0, frames.1.as_deref(), layout.cells(axis), thresholds);
+        let codes = binarize::codes(
+            w,
+            h,
+            planes.white,
+            planes.black,
+            &frames.pat,
+            frames.inv.as_deref(),
+            layout.cells(axis),
+            thresholds,
+        );
         let t_bin = t0.elapsed();
         let dir = scan_direction(w, h, &codes);
         let tolerance = params.consistency_cells * layout.step(axis) as f32;
-        let bin = if frames.1.is_some() { Binarization::Dual } else { Binarization::Threshold };
-        let signal = line_shift::Signal { white: planes.white, black: planes.black, pat: &frames.0, inv: frames.1.as_deref() };
-        let (coord, quality) = line_shift::subpixel(w, h, &codes, &signal, dir, layout.bits(axis), layout.step(axis), params);
+        let bin = if frames.inv.is_some() {
+            Binarization::Dual
+        } else {
+            Binarization::Threshold
+        };
+        let signal = line_shift::Signal {
+            white: planes.white,
+            black: planes.black,
+            pat: &frames.pat,
+            inv: frames.inv.as_deref(),
+        };
+        let (coord, quality) = line_shift::subpixel(
+            w,
+            h,
+            &codes,
+            &signal,
+            dir,
+            layout.bits(axis),
+            layout.step(axis),
+            params,
+        );
         let t_sub = t0.elapsed();
         // The filters look across the scan as rows; a column scan comes back transposed.
-        let (lw, lh) = if dir == ScanDirection::AlongRows { (w, h) } else { (h, w) };
+        let (lw, lh) = if dir == ScanDirection::AlongRows {
+            (w, h)
+        } else {
+            (h, w)
+        };
         let coord = filter_across(lw, lh, &coord, tolerance, params);
         let t_filter = t0.elapsed();
         let need_quality = axis == CodeAxis::Column;
         let (coord, quality) = match dir {
             ScanDirection::AlongRows => (coord, quality),
-            ScanDirection::AlongColumns => (transpose(&coord, h, w), if need_quality { transpose(&quality, h, w) } else { Vec::new() }),
+            ScanDirection::AlongColumns => (
+                transpose(&coord, h, w),
+                if need_quality {
+                    transpose(&quality, h, w)
+                } else {
+                    Vec::new()
+                },
+            ),
         };
         let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
-        tracing::debug!(?axis, ?dir, binarize_ms = ms(t_bin), line_shift_ms = ms(t_sub - t_bin), filters_ms = ms(t_filter - t_sub), total_ms = ms(t0.elapsed()), "axis decoded");
+        tracing::debug!(
+            ?axis,
+            ?dir,
+            binarize_ms = ms(t_bin),
+            line_shift_ms = ms(t_sub - t_bin),
+            filters_ms = ms(t_filter - t_sub),
+            total_ms = ms(t0.elapsed()),
+            "axis decoded"
+        );
         (coord, quality, bin)
     };
     let (col, quality, binarization) = run_axis(CodeAxis::Column, &planes.col);
     let row = planes.row.as_ref().map(|f| run_axis(CodeAxis::Row, f).0);
-    let mode_factor = if binarization == Binarization::Dual { 1.0 } else { 0.5 };
+    let mode_factor = if binarization == Binarization::Dual {
+        1.0
+    } else {
+        0.5
+    };
     let mut confidence = vec![0f32; w * h];
     confidence.par_iter_mut().enumerate().for_each(|(i, c)| {
         if col[i].is_finite() {
@@ -270,26 +379,40 @@ fn decode_planes<T: Sample>(capture: &CaptureSet, planes: &Planes<'_, T>, params
             *c = (contrast as f32 / full_scale).clamp(0.0, 1.0) * mode_factor * quality[i];
         }
     });
-    tracing::debug!(valid = col.iter().filter(|v| v.is_finite()).count(), total = w * h, "decoded");
-    Decoded { width: capture.width, height: capture.height, layout, col, row, confidence, binarization }
+    tracing::debug!(
+        valid = col.iter().filter(|v| v.is_finite()).count(),
+        total = w * h,
+        "decoded"
+    );
+    Decoded {
+        width: capture.width,
+        height: capture.height,
+        layout,
+        col,
+        row,
+        confidence,
+        binarization,
+    }
 }
 
 /// Blocked parallel transpose of a row-major (w × h) image into a row-major (h × w) one.
 pub(crate) fn transpose<T: Copy + Send + Sync + Default>(src: &[T], w: usize, h: usize) -> Vec<T> {
     const B: usize = 32;
     let mut out = vec![T::default(); w * h];
-    out.par_chunks_mut(B * h).enumerate().for_each(|(bx, block)| {
-        let x0 = bx * B;
-        let bw = block.len() / h;
-        for y0 in (0..h).step_by(B) {
-            for y in y0..(y0 + B).min(h) {
-                let row = &src[y * w + x0..y * w + x0 + bw];
-                for (dx, &v) in row.iter().enumerate() {
-                    block[dx * h + y] = v;
+    out.par_chunks_mut(B * h)
+        .enumerate()
+        .for_each(|(bx, block)| {
+            let x0 = bx * B;
+            let bw = block.len() / h;
+            for y0 in (0..h).step_by(B) {
+                for y in y0..(y0 + B).min(h) {
+                    let row = &src[y * w + x0..y * w + x0 + bw];
+                    for (dx, &v) in row.iter().enumerate() {
+                        block[dx * h + y] = v;
+                    }
                 }
             }
-        }
-    });
+        });
     out
 }
 
@@ -309,7 +432,13 @@ const BAND: usize = 32;
 ///
 /// Output row y depends on input rows y ± (2 + erosion), so each band reads a few extra rows
 /// and nothing is copied whole.
-fn filter_across(w: usize, h: usize, coord: &[f32], tolerance: f32, params: &DecodeParams) -> Vec<f32> {
+fn filter_across(
+    w: usize,
+    h: usize,
+    coord: &[f32],
+    tolerance: f32,
+    params: &DecodeParams,
+) -> Vec<f32> {
     let erosion = params.edge_erosion as usize;
     let halo = 2 + erosion;
     let mut out = vec![f32::NAN; w * h];
@@ -335,7 +464,10 @@ fn filter_across(w: usize, h: usize, coord: &[f32], tolerance: f32, params: &Dec
                         continue;
                     }
                     let (mut agree, mut jump) = (false, false);
-                    for n in [above.map(|r| r[x]), below.map(|r| r[x])].into_iter().flatten() {
+                    for n in [above.map(|r| r[x]), below.map(|r| r[x])]
+                        .into_iter()
+                        .flatten()
+                    {
                         if n.is_finite() {
                             if (n - v).abs() <= tolerance {
                                 agree = true;
@@ -360,7 +492,9 @@ fn filter_across(w: usize, h: usize, coord: &[f32], tolerance: f32, params: &Dec
                         let down = y + 1 == h || y + 1 == vhi || keep[i + w];
                         // Band-internal borders (y == vlo, y + 1 == vhi) are outside the rows
                         // this band writes, so their neighbours do not matter.
-                        next[i] = keep[i] && (y == 0 || y == vlo || up) && (y + 1 == h || y + 1 == vhi || down);
+                        next[i] = keep[i]
+                            && (y == 0 || y == vlo || up)
+                            && (y + 1 == h || y + 1 == vhi || down);
                     }
                 }
                 std::mem::swap(keep, next);
@@ -380,7 +514,12 @@ fn filter_across(w: usize, h: usize, coord: &[f32], tolerance: f32, params: &Dec
                     }
                     let v = coord[y * w + x];
                     d[x] = v;
-                    if params.cross_smoothing && y > 0 && y + 1 < h && valid(y - 1, x) && valid(y + 1, x) {
+                    if params.cross_smoothing
+                        && y > 0
+                        && y + 1 < h
+                        && valid(y - 1, x)
+                        && valid(y + 1, x)
+                    {
                         let (a, b) = (coord[(y - 1) * w + x], coord[(y + 1) * w + x]);
                         if (a - v).abs() <= tolerance && (b - v).abs() <= tolerance {
                             d[x] = 0.25 * (a + b) + 0.5 * v;

@@ -15,7 +15,10 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
     };
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
     let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
     let result = (|| {
         let mut f = std::fs::File::create(&tmp)?;
@@ -33,14 +36,18 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 /// Read a TOML file into `T`, with errors that name the file, line and field.
 pub fn read_toml<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    toml::from_str(&text)
-        .map_err(|e| Error::Toml { path: path.to_path_buf(), message: e.to_string() })
+    toml::from_str(&text).map_err(|e| Error::Toml {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
 }
 
 /// Serialize `value` as TOML and write it atomically.
 pub fn write_toml<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
-    let text = toml::to_string(value)
-        .map_err(|e| Error::Toml { path: path.to_path_buf(), message: e.to_string() })?;
+    let text = toml::to_string(value).map_err(|e| Error::Toml {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
     write_atomic(path, text.as_bytes())
 }
 

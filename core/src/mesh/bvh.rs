@@ -39,12 +39,23 @@ impl Bvh {
     /// Build over `mesh` (takes ownership).
     pub fn new(mesh: TriangleMesh) -> Bvh {
         let n = mesh.triangles.len();
-        let centroids: Vec<Vec3> = (0..n).map(|i| {
-            let [a, b, c] = mesh.corners(i);
-            (a + b + c) / 3.0
-        }).collect();
-        let mut bvh = Bvh { mesh, nodes: Vec::with_capacity(2 * n / LEAF + 1), order: (0..n as u32).collect() };
-        bvh.nodes.push(Node { min: [0.0; 3], max: [0.0; 3], start: 0, count: n as u32 });
+        let centroids: Vec<Vec3> = (0..n)
+            .map(|i| {
+                let [a, b, c] = mesh.corners(i);
+                (a + b + c) / 3.0
+            })
+            .collect();
+        let mut bvh = Bvh {
+            mesh,
+            nodes: Vec::with_capacity(2 * n / LEAF + 1),
+            order: (0..n as u32).collect(),
+        };
+        bvh.nodes.push(Node {
+            min: [0.0; 3],
+            max: [0.0; 3],
+            start: 0,
+            count: n as u32,
+        });
         let mut stack = vec![0usize];
         while let Some(ni) = stack.pop() {
             let Node { start, count, .. } = bvh.nodes[ni];
@@ -63,12 +74,26 @@ impl Bvh {
             if c <= LEAF {
                 continue;
             }
-            let axis = (0..3).max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b]))).unwrap_or(0);
+            let axis = (0..3)
+                .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
+                .unwrap_or(0);
             let mid = c / 2;
-            bvh.order[s..s + c].select_nth_unstable_by(mid, |&a, &b| centroids[a as usize][axis].total_cmp(&centroids[b as usize][axis]));
+            bvh.order[s..s + c].select_nth_unstable_by(mid, |&a, &b| {
+                centroids[a as usize][axis].total_cmp(&centroids[b as usize][axis])
+            });
             let left = bvh.nodes.len();
-            bvh.nodes.push(Node { min: lo, max: hi, start, count: mid as u32 });
-            bvh.nodes.push(Node { min: lo, max: hi, start: start + mid as u32, count: (c - mid) as u32 });
+            bvh.nodes.push(Node {
+                min: lo,
+                max: hi,
+                start,
+                count: mid as u32,
+            });
+            bvh.nodes.push(Node {
+                min: lo,
+                max: hi,
+                start: start + mid as u32,
+                count: (c - mid) as u32,
+            });
             bvh.nodes[ni].start = left as u32;
             bvh.nodes[ni].count = 0;
             stack.push(left);
@@ -106,7 +131,11 @@ impl Bvh {
                     if let Some(t) = moller_trumbore(o, d, &a, &b, &c) {
                         if t > t_min && t < limit {
                             limit = t;
-                            best = Some(RayHit { t, triangle: tri, normal: (b - a).cross(&(c - a)).normalize() });
+                            best = Some(RayHit {
+                                t,
+                                triangle: tri,
+                                normal: (b - a).cross(&(c - a)).normalize(),
+                            });
                         }
                     }
                 }
@@ -170,7 +199,8 @@ mod tests {
         let mut m = TriangleMesh::default();
         for j in 0..=n {
             for i in 0..=n {
-                m.vertices.push(Vec3::new(i as f64, j as f64, 0.1 * (i as f64 * 0.3).sin()));
+                m.vertices
+                    .push(Vec3::new(i as f64, j as f64, 0.1 * (i as f64 * 0.3).sin()));
             }
         }
         let id = |i: usize, j: usize| (j * (n + 1) + i) as u32;
@@ -188,16 +218,29 @@ mod tests {
         let mesh = grid(30);
         let bvh = Bvh::new(mesh.clone());
         for k in 0..200 {
-            let o = Vec3::new((k % 17) as f64 * 1.7 + 0.3, (k % 13) as f64 * 2.1 + 0.2, 10.0);
-            let d = Vec3::new(0.05 * ((k % 5) as f64 - 2.0), 0.03 * ((k % 7) as f64 - 3.0), -1.0);
+            let o = Vec3::new(
+                (k % 17) as f64 * 1.7 + 0.3,
+                (k % 13) as f64 * 2.1 + 0.2,
+                10.0,
+            );
+            let d = Vec3::new(
+                0.05 * ((k % 5) as f64 - 2.0),
+                0.03 * ((k % 7) as f64 - 3.0),
+                -1.0,
+            );
             let brute = (0..mesh.triangles.len())
                 .filter_map(|i| {
                     let [a, b, c] = mesh.corners(i);
                     moller_trumbore(&o, &d, &a, &b, &c).filter(|&t| t > 0.0)
                 })
                 .fold(f64::INFINITY, f64::min);
-            let got = bvh.intersect(&o, &d, 0.0, f64::INFINITY).map_or(f64::INFINITY, |h| h.t);
-            assert!((got - brute).abs() < 1e-9 || (got.is_infinite() && brute.is_infinite()), "ray {k}: {got} vs {brute}");
+            let got = bvh
+                .intersect(&o, &d, 0.0, f64::INFINITY)
+                .map_or(f64::INFINITY, |h| h.t);
+            assert!(
+                (got - brute).abs() < 1e-9 || (got.is_infinite() && brute.is_infinite()),
+                "ray {k}: {got} vs {brute}"
+            );
         }
     }
 }

@@ -33,6 +33,10 @@ impl TriangleMesh {
     #[inline]
     pub fn corners(&self, i: usize) -> [Vec3; 3] {
         let [a, b, c] = self.triangles[i];
-        [self.vertices[a as usize], self.vertices[b as usize], self.vertices[c as usize]]
+        [
+            self.vertices[a as usize],
+            self.vertices[b as usize],
+            self.vertices[c as usize],
+        ]
     }
 }

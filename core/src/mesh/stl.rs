@@ -9,10 +9,20 @@ use crate::{Error, Result};
 
 pub(super) fn read(path: &Path) -> Result<TriangleMesh> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let bad = |m: String| Error::Format { path: path.to_path_buf(), message: m };
+    let bad = |m: String| Error::Format {
+        path: path.to_path_buf(),
+        message: m,
+    };
     let tris = if is_binary(&bytes) {
         let n = u32::from_le_bytes([bytes[80], bytes[81], bytes[82], bytes[83]]) as usize;
-        let f = |o: usize| f64::from(f32::from_le_bytes([bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]]));
+        let f = |o: usize| {
+            f64::from(f32::from_le_bytes([
+                bytes[o],
+                bytes[o + 1],
+                bytes[o + 2],
+                bytes[o + 3],
+            ]))
+        };
         (0..n)
             .map(|i| {
                 let base = 84 + i * 50 + 12;
@@ -23,12 +33,16 @@ pub(super) fn read(path: &Path) -> Result<TriangleMesh> {
             })
             .collect::<Vec<_>>()
     } else {
-        let text = std::str::from_utf8(&bytes).map_err(|_| bad("neither binary STL nor ASCII text".into()))?;
+        let text = std::str::from_utf8(&bytes)
+            .map_err(|_| bad("neither binary STL nor ASCII text".into()))?;
         let mut verts = Vec::new();
         for (ln, line) in text.lines().enumerate() {
             let mut it = line.split_whitespace();
             if it.next() == Some("vertex") {
-                let xyz: Vec<f64> = it.map(|s| s.parse::<f64>()).collect::<std::result::Result<_, _>>().map_err(|_| bad(format!("line {}: bad vertex", ln + 1)))?;
+                let xyz: Vec<f64> = it
+                    .map(|s| s.parse::<f64>())
+                    .collect::<std::result::Result<_, _>>()
+                    .map_err(|_| bad(format!("line {}: bad vertex", ln + 1)))?;
                 if xyz.len() != 3 {
                     return Err(bad(format!("line {}: vertex needs 3 numbers", ln + 1)));
                 }
@@ -36,24 +50,33 @@ pub(super) fn read(path: &Path) -> Result<TriangleMesh> {
             }
         }
         if verts.len() % 3 != 0 {
-            return Err(bad(format!("{} vertices is not a whole number of triangles", verts.len())));
+            return Err(bad(format!(
+                "{} vertices is not a whole number of triangles",
+                verts.len()
+            )));
         }
         verts.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
     };
     if tris.is_empty() {
         return Err(bad("mesh has no triangles".into()));
     }
-    if tris.iter().flatten().any(|v| !v.iter().all(|c| c.is_finite())) {
+    if tris
+        .iter()
+        .flatten()
+        .any(|v| !v.iter().all(|c| c.is_finite()))
+    {
         return Err(bad("mesh has a non-finite vertex".into()));
     }
     let mut mesh = TriangleMesh::default();
     let mut index: HashMap<[u64; 3], u32> = HashMap::new();
     for t in tris {
         let ids = t.map(|v| {
-            *index.entry([v.x.to_bits(), v.y.to_bits(), v.z.to_bits()]).or_insert_with(|| {
-                mesh.vertices.push(v);
-                (mesh.vertices.len() - 1) as u32
-            })
+            *index
+                .entry([v.x.to_bits(), v.y.to_bits(), v.z.to_bits()])
+                .or_insert_with(|| {
+                    mesh.vertices.push(v);
+                    (mesh.vertices.len() - 1) as u32
+                })
         });
         if ids[0] != ids[1] && ids[1] != ids[2] && ids[0] != ids[2] {
             mesh.triangles.push(ids);

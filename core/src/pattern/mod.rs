@@ -22,7 +22,12 @@ pub struct CodeLayout {
 impl CodeLayout {
     /// A layout with one code cell per projector pixel.
     pub fn new(width: u32, height: u32) -> Self {
-        CodeLayout { width, height, column_step: 1, row_step: 1 }
+        CodeLayout {
+            width,
+            height,
+            column_step: 1,
+            row_step: 1,
+        }
     }
 
     /// Number of column code cells, ceil(W / column_step).
@@ -78,8 +83,16 @@ impl CodeLayout {
                 continue;
             }
             for bit in 0..self.bits(axis) {
-                seq.push(Pattern::Gray { axis, bit, inverse: false });
-                seq.push(Pattern::Gray { axis, bit, inverse: true });
+                seq.push(Pattern::Gray {
+                    axis,
+                    bit,
+                    inverse: false,
+                });
+                seq.push(Pattern::Gray {
+                    axis,
+                    bit,
+                    inverse: true,
+                });
             }
         }
         seq
@@ -229,7 +242,12 @@ mod tests {
     fn bit_counts_follow_spec() {
         let l = CodeLayout::new(1024, 768);
         assert_eq!((l.column_bits(), l.row_bits()), (10, 10));
-        let l = CodeLayout { width: 1920, height: 1080, column_step: 2, row_step: 2 };
+        let l = CodeLayout {
+            width: 1920,
+            height: 1080,
+            column_step: 2,
+            row_step: 2,
+        };
         assert_eq!((l.column_bits(), l.row_bits()), (10, 10));
         let l = CodeLayout::new(1280, 800);
         assert_eq!((l.column_bits(), l.row_bits()), (11, 10));
@@ -248,16 +266,33 @@ mod tests {
 
     #[test]
     fn rendered_columns_decode_to_their_index() {
-        let l = CodeLayout { width: 37, height: 5, column_step: 2, row_step: 1 };
+        let l = CodeLayout {
+            width: 37,
+            height: 5,
+            column_step: 2,
+            row_step: 1,
+        };
         let n = l.column_bits();
         let imgs: Vec<Vec<u8>> = (0..n)
-            .map(|bit| l.render(Pattern::Gray { axis: CodeAxis::Column, bit, inverse: false }))
+            .map(|bit| {
+                l.render(Pattern::Gray {
+                    axis: CodeAxis::Column,
+                    bit,
+                    inverse: false,
+                })
+            })
             .collect();
         for x in 0..37u32 {
-            let g = imgs.iter().fold(0u32, |g, img| (g << 1) | u32::from(img[x as usize] == 255));
+            let g = imgs
+                .iter()
+                .fold(0u32, |g, img| (g << 1) | u32::from(img[x as usize] == 255));
             assert_eq!(gray_to_binary(g), x / 2, "column {x}");
         }
-        let inv = l.render(Pattern::Gray { axis: CodeAxis::Column, bit: 0, inverse: true });
+        let inv = l.render(Pattern::Gray {
+            axis: CodeAxis::Column,
+            bit: 0,
+            inverse: true,
+        });
         assert!(inv.iter().zip(&imgs[0]).all(|(a, b)| a ^ b == 255));
     }
 }

@@ -16,7 +16,13 @@ pub struct Classical {
 impl Classical {
     /// Geometry from both devices' calibrations.
     pub fn new(camera: &Pinhole, projector: &Pinhole) -> Self {
-        Classical { oc: camera.center(), r_t: camera.r.transpose(), projector: projector.clone(), op: projector.center(), rp_t: projector.r.transpose() }
+        Classical {
+            oc: camera.center(),
+            r_t: camera.r.transpose(),
+            projector: projector.clone(),
+            op: projector.center(),
+            rp_t: projector.r.transpose(),
+        }
     }
 
     /// Camera-frame direction (x, y, 1) → world point on the camera ray closest to the projector

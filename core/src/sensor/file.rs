@@ -125,15 +125,43 @@ impl Sensor {
 
     /// Validate a parsed sensor file; `base` resolves relative paths, `ctx` names the source.
     pub fn from_file(f: &SensorFile, base: &Path, ctx: &str) -> Result<Sensor> {
-        let camera = pinhole(ctx, "camera", f.camera.width, f.camera.height, &f.camera.k, &f.camera.dist, &f.camera.r, &f.camera.t)?;
+        let camera = pinhole(
+            ctx,
+            "camera",
+            f.camera.width,
+            f.camera.height,
+            &f.camera.k,
+            &f.camera.dist,
+            &f.camera.r,
+            &f.camera.t,
+        )?;
         let p = &f.projector;
         if p.width == 0 || p.height == 0 {
-            return Err(Error::invalid(ctx, "projector.width/height", "must be positive"));
+            return Err(Error::invalid(
+                ctx,
+                "projector.width/height",
+                "must be positive",
+            ));
         }
         let projector = match (&p.k, &p.r, &p.t) {
-            (Some(k), Some(r), Some(t)) => Some(pinhole(ctx, "projector", p.width, p.height, k, &p.dist.unwrap_or_default(), r, t)?),
+            (Some(k), Some(r), Some(t)) => Some(pinhole(
+                ctx,
+                "projector",
+                p.width,
+                p.height,
+                k,
+                &p.dist.unwrap_or_default(),
+                r,
+                t,
+            )?),
             (None, None, None) => None,
-            _ => return Err(Error::invalid(ctx, "projector", "a full projector calibration needs all of k, r and t")),
+            _ => {
+                return Err(Error::invalid(
+                    ctx,
+                    "projector",
+                    "a full projector calibration needs all of k, r and t",
+                ))
+            }
         };
         let center = match p.center {
             Some(c) => {
@@ -143,7 +171,11 @@ impl Sensor {
             None => projector.as_ref().map(Pinhole::center),
         };
         if f.reference.is_some() && center.is_none() {
-            return Err(Error::invalid(ctx, "projector.center", "the parallax model (a [reference]) needs the projector centre"));
+            return Err(Error::invalid(
+                ctx,
+                "projector.center",
+                "the parallax model (a [reference]) needs the projector centre",
+            ));
         }
         if f.reference.is_none() && projector.is_none() {
             return Err(Error::invalid(ctx, "reference", "give a [reference] capture (parallax model) or a full projector calibration k, r, t (classical model)"));
@@ -180,17 +212,32 @@ impl SensorFile {
 
     /// The `[camera]` section of a pinhole model.
     pub fn camera_section(c: &Pinhole) -> CameraSection {
-        CameraSection { width: c.width, height: c.height, k: rows(&c.k), dist: c.dist.to_array(), r: rows(&c.r), t: [c.t.x, c.t.y, c.t.z] }
+        CameraSection {
+            width: c.width,
+            height: c.height,
+            k: rows(&c.k),
+            dist: c.dist.to_array(),
+            r: rows(&c.r),
+            t: [c.t.x, c.t.y, c.t.z],
+        }
     }
 }
 
 fn rows(m: &Mat3) -> [[f64; 3]; 3] {
-    [[m[(0, 0)], m[(0, 1)], m[(0, 2)]], [m[(1, 0)], m[(1, 1)], m[(1, 2)]], [m[(2, 0)], m[(2, 1)], m[(2, 2)]]]
+    [
+        [m[(0, 0)], m[(0, 1)], m[(0, 2)]],
+        [m[(1, 0)], m[(1, 1)], m[(1, 2)]],
+        [m[(2, 0)], m[(2, 1)], m[(2, 2)]],
+    ]
 }
 
 fn finite(ctx: &str, field: &str, values: &[f64]) -> Result<()> {
     match values.iter().position(|v| !v.is_finite()) {
-        Some(i) => Err(Error::invalid(ctx, format!("{field}[{i}]"), format!("{} is not a finite number", values[i]))),
+        Some(i) => Err(Error::invalid(
+            ctx,
+            format!("{field}[{i}]"),
+            format!("{} is not a finite number", values[i]),
+        )),
         None => Ok(()),
     }
 }
@@ -198,15 +245,35 @@ fn finite(ctx: &str, field: &str, values: &[f64]) -> Result<()> {
 fn check_rotation(ctx: &str, field: &str, r: &Mat3) -> Result<()> {
     let err = (r.transpose() * r - Mat3::identity()).abs().max();
     if err > 1e-5 || r.determinant() < 0.0 {
-        return Err(Error::invalid(ctx, field, format!("is not a rotation (|RᵀR − I| = {err:.2e}, det = {:.4})", r.determinant())));
+        return Err(Error::invalid(
+            ctx,
+            field,
+            format!(
+                "is not a rotation (|RᵀR − I| = {err:.2e}, det = {:.4})",
+                r.determinant()
+            ),
+        ));
     }
     Ok(())
 }
 
 #[allow(clippy::too_many_arguments)]
-fn pinhole(ctx: &str, name: &str, width: u32, height: u32, k: &[[f64; 3]; 3], dist: &[f64; 5], r: &[[f64; 3]; 3], t: &[f64; 3]) -> Result<Pinhole> {
+fn pinhole(
+    ctx: &str,
+    name: &str,
+    width: u32,
+    height: u32,
+    k: &[[f64; 3]; 3],
+    dist: &[f64; 5],
+    r: &[[f64; 3]; 3],
+    t: &[f64; 3],
+) -> Result<Pinhole> {
     if width == 0 || height == 0 {
-        return Err(Error::invalid(ctx, format!("{name}.width/height"), "must be positive"));
+        return Err(Error::invalid(
+            ctx,
+            format!("{name}.width/height"),
+            "must be positive",
+        ));
     }
     for (i, row) in k.iter().enumerate() {
         finite(ctx, &format!("{name}.k[{i}]"), row)?;
@@ -217,12 +284,29 @@ fn pinhole(ctx: &str, name: &str, width: u32, height: u32, k: &[[f64; 3]; 3], di
     finite(ctx, &format!("{name}.t"), t)?;
     finite(ctx, &format!("{name}.dist"), dist)?;
     let km = Mat3::from_fn(|i, j| k[i][j]);
-    if km[(0, 0)] <= 0.0 || km[(1, 1)] <= 0.0 || km[(1, 0)] != 0.0 || km[(2, 0)] != 0.0 || km[(2, 1)] != 0.0 || km[(2, 2)] != 1.0 {
-        return Err(Error::invalid(ctx, format!("{name}.k"), "expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0"));
+    if km[(0, 0)] <= 0.0
+        || km[(1, 1)] <= 0.0
+        || km[(1, 0)] != 0.0
+        || km[(2, 0)] != 0.0
+        || km[(2, 1)] != 0.0
+        || km[(2, 2)] != 1.0
+    {
+        return Err(Error::invalid(
+            ctx,
+            format!("{name}.k"),
+            "expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0",
+        ));
     }
     let rm = Mat3::from_fn(|i, j| r[i][j]);
     check_rotation(ctx, &format!("{name}.r"), &rm)?;
-    Ok(Pinhole { width, height, k: km, dist: Distortion::from_array(*dist), r: rm, t: Vec3::from(*t) })
+    Ok(Pinhole {
+        width,
+        height,
+        k: km,
+        dist: Distortion::from_array(*dist),
+        r: rm,
+        t: Vec3::from(*t),
+    })
 }
 
 #[cfg(test)]
@@ -245,7 +329,10 @@ capture = "reference"
 "#;
 
     fn parse(text: &str) -> Result<Sensor> {
-        let f: SensorFile = toml::from_str(text).map_err(|e| Error::Toml { path: "sensor.toml".into(), message: e.to_string() })?;
+        let f: SensorFile = toml::from_str(text).map_err(|e| Error::Toml {
+            path: "sensor.toml".into(),
+            message: e.to_string(),
+        })?;
         Sensor::from_file(&f, Path::new("/data"), "sensor.toml")
     }
 
@@ -258,13 +345,24 @@ capture = "reference"
 
     #[test]
     fn nan_and_bad_rotation_name_the_field() {
-        let msg = parse(&GOOD.replace("400.0]", "nan]")).expect_err("nan").to_string();
-        assert!(msg.contains("camera.k[0]") && msg.contains("sensor.toml"), "{msg}");
-        let msg = parse(&GOOD.replace("[0.0, -1.0, 0.0]", "[0.0, -2.0, 0.0]")).expect_err("rot").to_string();
+        let msg = parse(&GOOD.replace("400.0]", "nan]"))
+            .expect_err("nan")
+            .to_string();
+        assert!(
+            msg.contains("camera.k[0]") && msg.contains("sensor.toml"),
+            "{msg}"
+        );
+        let msg = parse(&GOOD.replace("[0.0, -1.0, 0.0]", "[0.0, -2.0, 0.0]"))
+            .expect_err("rot")
+            .to_string();
         assert!(msg.contains("camera.r"), "{msg}");
-        let msg = parse(&GOOD.replace("center = [500.0, 0.0, 1600.0]", "")).expect_err("center").to_string();
+        let msg = parse(&GOOD.replace("center = [500.0, 0.0, 1600.0]", ""))
+            .expect_err("center")
+            .to_string();
         assert!(msg.contains("projector.center"), "{msg}");
-        let msg = parse(&GOOD.replace("height = 600", "height = 600\nfoo = 1")).expect_err("unknown").to_string();
+        let msg = parse(&GOOD.replace("height = 600", "height = 600\nfoo = 1"))
+            .expect_err("unknown")
+            .to_string();
         assert!(msg.contains("foo"), "{msg}");
     }
 }

@@ -8,7 +8,10 @@ mod rays;
 pub mod reference;
 
 pub use classical::Classical;
-pub use file::{CameraSection, ProjectorSection, ReferenceSection, ResidualSection, Sensor, SensorFile, ToCommonSection};
+pub use file::{
+    CameraSection, ProjectorSection, ReferenceSection, ResidualSection, Sensor, SensorFile,
+    ToCommonSection,
+};
 pub use parallax::{parallel_height, Parallax, ParallaxPoint};
 pub use rays::RayTable;
 
@@ -36,7 +39,11 @@ pub enum ModelChoice {
 }
 
 enum Model {
-    Parallax { geometry: Parallax, axis: CodeAxis, residual: Option<Vec<[f32; 3]>> },
+    Parallax {
+        geometry: Parallax,
+        axis: CodeAxis,
+        residual: Option<Vec<[f32; 3]>>,
+    },
     Classical(Classical),
 }
 
@@ -52,7 +59,11 @@ pub struct Reconstructor {
 impl Reconstructor {
     /// Prepare `sensor`: build the ray table and, for the parallax model, decode and fit the
     /// reference recording.
-    pub fn new(sensor: &Sensor, choice: ModelChoice, params: &DecodeParams) -> Result<Reconstructor> {
+    pub fn new(
+        sensor: &Sensor,
+        choice: ModelChoice,
+        params: &DecodeParams,
+    ) -> Result<Reconstructor> {
         let use_parallax = match choice {
             ModelChoice::Auto => sensor.reference.is_some(),
             ModelChoice::Parallax => true,
@@ -60,34 +71,84 @@ impl Reconstructor {
         };
         let rays = RayTable::new(&sensor.camera);
         let model = if use_parallax {
-            let dir = sensor.reference.as_ref().ok_or_else(|| Error::invalid("sensor", "reference", "the parallax model needs a [reference] capture"))?;
-            let op = sensor.projector_center.ok_or_else(|| Error::invalid("sensor", "projector.center", "the parallax model needs the projector centre"))?;
+            let dir = sensor.reference.as_ref().ok_or_else(|| {
+                Error::invalid(
+                    "sensor",
+                    "reference",
+                    "the parallax model needs a [reference] capture",
+                )
+            })?;
+            let op = sensor.projector_center.ok_or_else(|| {
+                Error::invalid(
+                    "sensor",
+                    "projector.center",
+                    "the parallax model needs the projector centre",
+                )
+            })?;
             let capture = CaptureSet::load(dir)?;
-            check_size(&sensor.camera, capture.width, capture.height, &dir.display().to_string())?;
+            check_size(
+                &sensor.camera,
+                capture.width,
+                capture.height,
+                &dir.display().to_string(),
+            )?;
             let reference = decode(&capture, params)?;
             let (geometry, axis) = parallax_from_reference(&sensor.camera, &rays, op, &reference)?;
             let residual = match &sensor.residual {
                 Some(path) => Some(load_residual(path, &sensor.camera)?),
                 None => None,
             };
-            Model::Parallax { geometry, axis, residual }
+            Model::Parallax {
+                geometry,
+                axis,
+                residual,
+            }
         } else {
-            let projector = sensor.projector.as_ref().ok_or_else(|| Error::invalid("sensor", "projector.k/r/t", "the classical model needs the full projector calibration"))?;
+            let projector = sensor.projector.as_ref().ok_or_else(|| {
+                Error::invalid(
+                    "sensor",
+                    "projector.k/r/t",
+                    "the classical model needs the full projector calibration",
+                )
+            })?;
             Model::Classical(Classical::new(&sensor.camera, projector))
         };
-        Ok(Reconstructor { camera: sensor.camera.clone(), rays, model, to_common: sensor.to_common })
+        Ok(Reconstructor {
+            camera: sensor.camera.clone(),
+            rays,
+            model,
+            to_common: sensor.to_common,
+        })
     }
 
     /// A parallax reconstructor from parts already in memory (simulation, tests).
-    pub fn parallax(camera: &Pinhole, projector_center: Vec3, reference: &Decoded) -> Result<Reconstructor> {
+    pub fn parallax(
+        camera: &Pinhole,
+        projector_center: Vec3,
+        reference: &Decoded,
+    ) -> Result<Reconstructor> {
         let rays = RayTable::new(camera);
         let (geometry, axis) = parallax_from_reference(camera, &rays, projector_center, reference)?;
-        Ok(Reconstructor { camera: camera.clone(), rays, model: Model::Parallax { geometry, axis, residual: None }, to_common: None })
+        Ok(Reconstructor {
+            camera: camera.clone(),
+            rays,
+            model: Model::Parallax {
+                geometry,
+                axis,
+                residual: None,
+            },
+            to_common: None,
+        })
     }
 
     /// A classical reconstructor from both calibrations.
     pub fn classical(camera: &Pinhole, projector: &Pinhole) -> Reconstructor {
-        Reconstructor { camera: camera.clone(), rays: RayTable::new(camera), model: Model::Classical(Classical::new(camera, projector)), to_common: None }
+        Reconstructor {
+            camera: camera.clone(),
+            rays: RayTable::new(camera),
+            model: Model::Classical(Classical::new(camera, projector)),
+            to_common: None,
+        }
     }
 
     /// Name of the model in use.
@@ -100,11 +161,20 @@ impl Reconstructor {
 
     /// Reconstruct every valid pixel into the sensor world frame (parallel over rows).
     pub fn reconstruct(&self, decoded: &Decoded) -> Result<PointCloud> {
-        check_size(&self.camera, decoded.width, decoded.height, "decoded capture")?;
+        check_size(
+            &self.camera,
+            decoded.width,
+            decoded.height,
+            "decoded capture",
+        )?;
         let w = decoded.width as usize;
         let mut dense = vec![[f32::NAN; 3]; decoded.col.len()];
         match &self.model {
-            Model::Parallax { geometry, axis, residual } => {
+            Model::Parallax {
+                geometry,
+                axis,
+                residual,
+            } => {
                 let codes = decoded.map(*axis).ok_or_else(|| {
                     Error::Insufficient(format!("the sensor's reference is decoded along {axis:?} codes, which this capture lacks"))
                 })?;
@@ -162,29 +232,60 @@ impl Reconstructor {
 
 fn check_size(camera: &Pinhole, w: u32, h: u32, what: &str) -> Result<()> {
     if (w, h) != (camera.width, camera.height) {
-        return Err(Error::invalid(what, "size", format!("is {w}x{h} but the sensor's camera is {}x{}", camera.width, camera.height)));
+        return Err(Error::invalid(
+            what,
+            "size",
+            format!(
+                "is {w}x{h} but the sensor's camera is {}x{}",
+                camera.width, camera.height
+            ),
+        ));
     }
     Ok(())
 }
 
 /// Fit the reference along the code axis that moves most along the epipolar lines.
-fn parallax_from_reference(camera: &Pinhole, rays: &RayTable, op: Vec3, reference: &Decoded) -> Result<(Parallax, CodeAxis)> {
-    check_size(camera, reference.width, reference.height, "reference capture")?;
+fn parallax_from_reference(
+    camera: &Pinhole,
+    rays: &RayTable,
+    op: Vec3,
+    reference: &Decoded,
+) -> Result<(Parallax, CodeAxis)> {
+    check_size(
+        camera,
+        reference.width,
+        reference.height,
+        "reference capture",
+    )?;
     let mut best: Option<(f64, Parallax, CodeAxis)> = None;
     for axis in [CodeAxis::Column, CodeAxis::Row] {
-        let Some(codes) = reference.map(axis) else { continue };
+        let Some(codes) = reference.map(axis) else {
+            continue;
+        };
         let samples = plane_samples(camera, rays, codes);
         if samples.len() < 1000 {
             if axis == CodeAxis::Column {
-                return Err(Error::Insufficient(format!("reference has only {} valid pixels on the plane", samples.len())));
+                return Err(Error::Insufficient(format!(
+                    "reference has only {} valid pixels on the plane",
+                    samples.len()
+                )));
             }
             continue;
         }
         let map = PlaneCodeMap::fit(&samples, DEFAULT_DEGREE)?;
-        tracing::info!(?axis, rms = map.rms, inliers = map.inliers, samples = samples.len(), "reference fitted");
+        tracing::info!(
+            ?axis,
+            rms = map.rms,
+            inliers = map.inliers,
+            samples = samples.len(),
+            "reference fitted"
+        );
         let geometry = Parallax::new(camera, op, map);
         // Sensitivity: code change per mm along the epipolar line at the image centre.
-        let d = camera.ray(f64::from(camera.width) / 2.0, f64::from(camera.height) / 2.0);
+        let d = camera.ray(
+            f64::from(camera.width) / 2.0,
+            f64::from(camera.height) / 2.0,
+        );
         let oc = camera.center();
         let q = oc + d * (-oc.z / d.z);
         let n = (op - oc).cross(&d);
@@ -195,7 +296,8 @@ fn parallax_from_reference(camera: &Pinhole, rays: &RayTable, op: Vec3, referenc
             best = Some((sens, geometry, axis));
         }
     }
-    let (_, g, axis) = best.ok_or_else(|| Error::Insufficient("reference has no decodable code".into()))?;
+    let (_, g, axis) =
+        best.ok_or_else(|| Error::Insufficient("reference has no decodable code".into()))?;
     let pixels = camera.width as usize * camera.height as usize;
     Ok((g.with_table(rays, pixels), axis))
 }
@@ -220,7 +322,11 @@ fn plane_samples(camera: &Pinhole, rays: &RayTable, codes: &[f32]) -> Vec<PlaneS
                 let (x, y) = rays.get(i);
                 let d = r_t * Vec3::new(x, y, 1.0);
                 let lam = -oc.z / d.z;
-                (lam > 0.0).then(|| PlaneSample { x: oc.x + lam * d.x, y: oc.y + lam * d.y, code: f64::from(c) })
+                (lam > 0.0).then(|| PlaneSample {
+                    x: oc.x + lam * d.x,
+                    y: oc.y + lam * d.y,
+                    code: f64::from(c),
+                })
             })
         })
         .collect()
@@ -230,7 +336,11 @@ fn load_residual(path: &std::path::Path, camera: &Pinhole) -> Result<Vec<[f32; 3
     let (shape, data) = npy::read::<f32>(path)?;
     let want = [camera.height as usize, camera.width as usize, 3];
     if shape != want {
-        return Err(Error::invalid(path.display(), "shape", format!("is {shape:?}, expected {want:?} (H × W × 3)")));
+        return Err(Error::invalid(
+            path.display(),
+            "shape",
+            format!("is {shape:?}, expected {want:?} (H × W × 3)"),
+        ));
     }
     Ok(data.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
 }

@@ -7,8 +7,8 @@
 //! O_p → P_r and the camera ray meet at the surface point P_s (Eq. 2.34 in world terms).
 
 use crate::geometry::{closest_on_first, Mat3, Pinhole, Vec3};
-use crate::sensor::reference::PlaneCodeMap;
 use crate::sensor::rays::RayTable;
+use crate::sensor::reference::PlaneCodeMap;
 
 /// Eq. 2.37, the parallel configuration: height from the plane distance m = |H p_sr| between the
 /// camera ray's plane point and the reference point with the same code, for standoff S and
@@ -69,7 +69,13 @@ fn epipolar_line(oc: &Vec3, op: &Vec3, d: &Vec3) -> Option<(Vec3, f64, f64)> {
 impl Parallax {
     /// Geometry from the camera, the projector centre and the fitted reference.
     pub fn new(camera: &Pinhole, projector_center: Vec3, map: PlaneCodeMap) -> Self {
-        Parallax { oc: camera.center(), op: projector_center, r_t: camera.r.transpose(), map, table: Vec::new() }
+        Parallax {
+            oc: camera.center(),
+            op: projector_center,
+            r_t: camera.r.transpose(),
+            map,
+            table: Vec::new(),
+        }
     }
 
     /// Precompute the per-pixel quadratic of φ along each pixel's epipolar line, which lets
@@ -86,7 +92,11 @@ impl Parallax {
                     Some((q, lx, ly)) => {
                         let f = |t: f64| self.map.eval(q.x + t * lx, q.y + t * ly).0;
                         let (fm, f0, fp) = (f(-h), f(0.0), f(h));
-                        [f0 as f32, ((fp - fm) / (2.0 * h)) as f32, ((fp - 2.0 * f0 + fm) / (h * h)) as f32]
+                        [
+                            f0 as f32,
+                            ((fp - fm) / (2.0 * h)) as f32,
+                            ((fp - 2.0 * f0 + fm) / (h * h)) as f32,
+                        ]
                     }
                     None => [f32::NAN; 3],
                 }
@@ -107,13 +117,17 @@ impl Parallax {
         };
         let (q, lx, ly) = epipolar_line(&self.oc, &self.op, &d)?;
         let (f0, g, c2) = (f64::from(f0), f64::from(g), f64::from(c2));
-        if !(g.abs() > 1e-9) {
+        if g.is_nan() || g.abs() <= 1e-9 {
             return None;
         }
         // Solve f0 + g t + c2 t²/2 = code (root nearest 0), then one Newton step on φ itself.
         let r = code - f0;
         let disc = g * g + 2.0 * c2 * r;
-        let mut t = if c2.abs() > 1e-12 && disc >= 0.0 { 2.0 * r / (g + g.signum() * disc.sqrt()) } else { r / g };
+        let mut t = if c2.abs() > 1e-12 && disc >= 0.0 {
+            2.0 * r / (g + g.signum() * disc.sqrt())
+        } else {
+            r / g
+        };
         let (phi, gx, gy) = self.map.eval(q.x + t * lx, q.y + t * ly);
         let gl = gx * lx + gy * ly;
         if gl.abs() < 1e-9 {
@@ -122,27 +136,43 @@ impl Parallax {
         t -= (phi - code) / gl;
         let pr = Vec3::new(q.x + t * lx, q.y + t * ly, 0.0);
         let (alpha, gap) = closest_on_first(&self.oc, &d, &self.op, &(pr - self.op))?;
-        (alpha > 0.0).then(|| ParallaxPoint { point: self.oc + d * alpha, shift: t.abs(), gap })
+        (alpha > 0.0).then(|| ParallaxPoint {
+            point: self.oc + d * alpha,
+            shift: t.abs(),
+            gap,
+        })
     }
 
     /// Reconstruct the point seen at pixel `i` of `rays` carrying projector code `code`.
     #[inline]
     pub fn point(&self, rays: &RayTable, i: usize, code: f64) -> Option<ParallaxPoint> {
         let (x, y) = rays.get(i);
-        self.point_for_direction(&(self.r_t * Vec3::new(x, y, 1.0)), code, 0.0).map(|(p, _)| p)
+        self.point_for_direction(&(self.r_t * Vec3::new(x, y, 1.0)), code, 0.0)
+            .map(|(p, _)| p)
     }
 
     /// As [`Parallax::point`], with the search along the epipolar line started at signed shift
     /// `guess` (e.g. the neighbouring pixel's); returns the point and its signed shift.
     #[inline]
-    pub fn point_near(&self, rays: &RayTable, i: usize, code: f64, guess: f64) -> Option<(ParallaxPoint, f64)> {
+    pub fn point_near(
+        &self,
+        rays: &RayTable,
+        i: usize,
+        code: f64,
+        guess: f64,
+    ) -> Option<(ParallaxPoint, f64)> {
         let (x, y) = rays.get(i);
         self.point_for_direction(&(self.r_t * Vec3::new(x, y, 1.0)), code, guess)
     }
 
     /// Reconstruct along a world ray direction `d` from the camera centre, starting the Newton
     /// search at signed plane shift `t0`.
-    pub fn point_for_direction(&self, d: &Vec3, code: f64, t0: f64) -> Option<(ParallaxPoint, f64)> {
+    pub fn point_for_direction(
+        &self,
+        d: &Vec3,
+        code: f64,
+        t0: f64,
+    ) -> Option<(ParallaxPoint, f64)> {
         let (oc, op) = (&self.oc, &self.op);
         let (q, lx, ly) = epipolar_line(oc, op, d)?;
         let mut t = t0;
@@ -165,7 +195,16 @@ impl Parallax {
         }
         let pr = Vec3::new(q.x + t * lx, q.y + t * ly, 0.0);
         let (alpha, gap) = closest_on_first(oc, d, op, &(pr - op))?;
-        (alpha > 0.0).then(|| (ParallaxPoint { point: oc + d * alpha, shift: t.abs(), gap }, t))
+        (alpha > 0.0).then(|| {
+            (
+                ParallaxPoint {
+                    point: oc + d * alpha,
+                    shift: t.abs(),
+                    gap,
+                },
+                t,
+            )
+        })
     }
 
     /// Camera centre.

@@ -23,7 +23,10 @@ impl RayTable {
                 *out = [x as f32, y as f32];
             }
         });
-        RayTable { width: camera.width, xy }
+        RayTable {
+            width: camera.width,
+            xy,
+        }
     }
 
     /// Normalized coordinates of pixel index `i` (row-major).

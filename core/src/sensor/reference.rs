@@ -49,25 +49,57 @@ impl PlaneCodeMap {
     pub fn fit(samples: &[PlaneSample], degree: usize) -> Result<PlaneCodeMap> {
         let nt = n_terms(degree);
         if samples.len() < 5 + nt + 10 {
-            return Err(Error::Insufficient(format!("reference has only {} valid samples; the fit needs at least {}", samples.len(), 5 + nt + 10)));
+            return Err(Error::Insufficient(format!(
+                "reference has only {} valid samples; the fit needs at least {}",
+                samples.len(),
+                5 + nt + 10
+            )));
         }
         let n = samples.len() as f64;
-        let (sx, sy) = samples.iter().fold((0.0, 0.0), |a, s| (a.0 + s.x, a.1 + s.y));
+        let (sx, sy) = samples
+            .iter()
+            .fold((0.0, 0.0), |a, s| (a.0 + s.x, a.1 + s.y));
         let (cx, cy) = (sx / n, sy / n);
-        let scale = samples.iter().map(|s| (s.x - cx).abs().max((s.y - cy).abs())).fold(0.0, f64::max).max(1e-9);
-        let mut map = PlaneCodeMap { cx, cy, scale, h: [0.0; 5], degree, poly: vec![0.0; nt], rms: 0.0, inliers: samples.len() };
+        let scale = samples
+            .iter()
+            .map(|s| (s.x - cx).abs().max((s.y - cy).abs()))
+            .fold(0.0, f64::max)
+            .max(1e-9);
+        let mut map = PlaneCodeMap {
+            cx,
+            cy,
+            scale,
+            h: [0.0; 5],
+            degree,
+            poly: vec![0.0; nt],
+            rms: 0.0,
+            inliers: samples.len(),
+        };
         let mut keep: Vec<bool> = vec![true; samples.len()];
         for round in 0..3 {
             map.poly.iter_mut().for_each(|c| *c = 0.0);
             map.h = fit_rational(samples, &keep, cx, cy, scale)?;
             map.poly = fit_poly(samples, &keep, &map, degree)?;
-            let resid: Vec<f64> = samples.par_iter().map(|s| s.code - map.eval(s.x, s.y).0).collect();
-            let mut abs: Vec<f64> = resid.iter().zip(&keep).filter(|(_, k)| **k).map(|(r, _)| r.abs()).collect();
+            let resid: Vec<f64> = samples
+                .par_iter()
+                .map(|s| s.code - map.eval(s.x, s.y).0)
+                .collect();
+            let mut abs: Vec<f64> = resid
+                .iter()
+                .zip(&keep)
+                .filter(|(_, k)| **k)
+                .map(|(r, _)| r.abs())
+                .collect();
             let mid = abs.len() / 2;
             abs.select_nth_unstable_by(mid, f64::total_cmp);
             let sigma = 1.4826 * abs[mid];
             let limit = (4.0 * sigma).max(0.05);
-            let inl: Vec<f64> = resid.iter().zip(&keep).filter(|(r, k)| **k && r.abs() <= limit).map(|(r, _)| *r).collect();
+            let inl: Vec<f64> = resid
+                .iter()
+                .zip(&keep)
+                .filter(|(r, k)| **k && r.abs() <= limit)
+                .map(|(r, _)| *r)
+                .collect();
             map.rms = (inl.iter().map(|r| r * r).sum::<f64>() / inl.len().max(1) as f64).sqrt();
             map.inliers = inl.len();
             tracing::debug!(round, rms = map.rms, inliers = map.inliers, "reference fit");
@@ -137,11 +169,21 @@ fn monomials(degree: usize, x: f64, y: f64, out: &mut [f64]) {
 }
 
 /// Least squares by accumulated normal equations (parallel), solved by SVD for robustness.
-fn solve_normal(n: usize, rows: impl Fn(usize, &mut [f64]) -> Option<f64> + Sync, count: usize) -> Result<Vec<f64>> {
+fn solve_normal(
+    n: usize,
+    rows: impl Fn(usize, &mut [f64]) -> Option<f64> + Sync,
+    count: usize,
+) -> Result<Vec<f64>> {
     let (ata, atb) = (0..count)
         .into_par_iter()
         .fold(
-            || (DMatrix::<f64>::zeros(n, n), DVector::<f64>::zeros(n), vec![0.0; n]),
+            || {
+                (
+                    DMatrix::<f64>::zeros(n, n),
+                    DVector::<f64>::zeros(n),
+                    vec![0.0; n],
+                )
+            },
             |(mut ata, mut atb, mut row), i| {
                 if let Some(b) = rows(i, &mut row) {
                     for a in 0..n {
@@ -155,7 +197,10 @@ fn solve_normal(n: usize, rows: impl Fn(usize, &mut [f64]) -> Option<f64> + Sync
             },
         )
         .map(|(a, b, _)| (a, b))
-        .reduce(|| (DMatrix::zeros(n, n), DVector::zeros(n)), |(a1, b1), (a2, b2)| (a1 + a2, b1 + b2));
+        .reduce(
+            || (DMatrix::zeros(n, n), DVector::zeros(n)),
+            |(a1, b1), (a2, b2)| (a1 + a2, b1 + b2),
+        );
     let mut full = ata.clone();
     for a in 0..n {
         for c in 0..a {
@@ -163,11 +208,19 @@ fn solve_normal(n: usize, rows: impl Fn(usize, &mut [f64]) -> Option<f64> + Sync
         }
     }
     let svd = full.svd(true, true);
-    let x = svd.solve(&atb, 1e-12).map_err(|e| Error::Insufficient(format!("reference fit is singular: {e}")))?;
+    let x = svd
+        .solve(&atb, 1e-12)
+        .map_err(|e| Error::Insufficient(format!("reference fit is singular: {e}")))?;
     Ok(x.iter().copied().collect())
 }
 
-fn fit_rational(s: &[PlaneSample], keep: &[bool], cx: f64, cy: f64, scale: f64) -> Result<[f64; 5]> {
+fn fit_rational(
+    s: &[PlaneSample],
+    keep: &[bool],
+    cx: f64,
+    cy: f64,
+    scale: f64,
+) -> Result<[f64; 5]> {
     let x = solve_normal(
         5,
         |i, row| {
@@ -183,7 +236,12 @@ fn fit_rational(s: &[PlaneSample], keep: &[bool], cx: f64, cy: f64, scale: f64) 
     Ok([x[0], x[1], x[2], x[3], x[4]])
 }
 
-fn fit_poly(s: &[PlaneSample], keep: &[bool], map: &PlaneCodeMap, degree: usize) -> Result<Vec<f64>> {
+fn fit_poly(
+    s: &[PlaneSample],
+    keep: &[bool],
+    map: &PlaneCodeMap,
+    degree: usize,
+) -> Result<Vec<f64>> {
     solve_normal(
         n_terms(degree),
         |i, row| {
@@ -191,7 +249,12 @@ fn fit_poly(s: &[PlaneSample], keep: &[bool], map: &PlaneCodeMap, degree: usize)
                 return None;
             }
             let resid = s[i].code - map.eval(s[i].x, s[i].y).0;
-            monomials(degree, (s[i].x - map.cx) / map.scale, (s[i].y - map.cy) / map.scale, row);
+            monomials(
+                degree,
+                (s[i].x - map.cx) / map.scale,
+                (s[i].y - map.cy) / map.scale,
+                row,
+            );
             Some(resid)
         },
         s.len(),
@@ -213,18 +276,34 @@ mod tests {
             for j in 0..150 {
                 let (x, y) = (-400.0 + 4.0 * i as f64, -300.0 + 4.0 * j as f64);
                 let noise = ((i * 7919 + j * 104729) % 1000) as f64 / 1000.0 - 0.5;
-                samples.push(PlaneSample { x, y, code: truth(x, y) + 0.02 * noise });
+                samples.push(PlaneSample {
+                    x,
+                    y,
+                    code: truth(x, y) + 0.02 * noise,
+                });
             }
         }
         samples[100].code += 40.0; // a gross outlier must not bend the fit
         let map = PlaneCodeMap::fit(&samples, DEFAULT_DEGREE).expect("fit");
-        for &(x, y) in &[(0.0, 0.0), (350.0, 250.0), (-380.0, -280.0), (120.0, -200.0)] {
+        for &(x, y) in &[
+            (0.0, 0.0),
+            (350.0, 250.0),
+            (-380.0, -280.0),
+            (120.0, -200.0),
+        ] {
             let (v, gx, gy) = map.eval(x, y);
-            assert!((v - truth(x, y)).abs() < 0.01, "value at ({x},{y}): {v} vs {}", truth(x, y));
+            assert!(
+                (v - truth(x, y)).abs() < 0.01,
+                "value at ({x},{y}): {v} vs {}",
+                truth(x, y)
+            );
             let h = 1e-3;
             let ngx = (truth(x + h, y) - truth(x - h, y)) / (2.0 * h);
             let ngy = (truth(x, y + h) - truth(x, y - h)) / (2.0 * h);
-            assert!((gx - ngx).abs() < 1e-3 && (gy - ngy).abs() < 1e-3, "gradient");
+            assert!(
+                (gx - ngx).abs() < 1e-3 && (gy - ngy).abs() < 1e-3,
+                "gradient"
+            );
         }
         assert!(map.rms < 0.01, "rms {}", map.rms);
     }

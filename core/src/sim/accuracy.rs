@@ -32,7 +32,8 @@ pub fn evaluate(cloud: &PointCloud, truth: &Truth, lit_threshold: f32) -> Accura
     let lit = |i: usize| truth.lit[i] >= lit_threshold && truth.xyz[i][0].is_finite();
     let lit_pixels = (0..truth.lit.len()).filter(|&i| lit(i)).count();
     let mut reconstructed_lit = 0;
-    let (mut n, mut sum, mut sum2, mut outliers, mut max) = (0usize, 0.0f64, 0.0f64, 0usize, 0.0f64);
+    let (mut n, mut sum, mut sum2, mut outliers, mut max) =
+        (0usize, 0.0f64, 0.0f64, 0usize, 0.0f64);
     for (p, &px) in cloud.points.iter().zip(&cloud.pixels) {
         let i = px as usize;
         let t = truth.xyz[i];
@@ -44,7 +45,10 @@ pub fn evaluate(cloud: &PointCloud, truth: &Truth, lit_threshold: f32) -> Accura
         if lit(i) {
             reconstructed_lit += 1;
         }
-        let e = (0..3).map(|k| f64::from(p[k] - t[k]).powi(2)).sum::<f64>().sqrt();
+        let e = (0..3)
+            .map(|k| f64::from(p[k] - t[k]).powi(2))
+            .sum::<f64>()
+            .sqrt();
         n += 1;
         sum += e;
         sum2 += e * e;

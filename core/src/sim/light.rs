@@ -23,11 +23,21 @@ impl Profile {
                 let u = start + k as f32 / RES;
                 if sigma <= 1e-6 {
                     let i = (u + 0.5).floor();
-                    return if i >= 0.0 && (i as usize) < vals.len() { vals[i as usize] } else { 0.0 };
+                    return if i >= 0.0 && (i as usize) < vals.len() {
+                        vals[i as usize]
+                    } else {
+                        0.0
+                    };
                 }
                 let lo = ((u - 4.0 * sigma - 1.0).floor().max(0.0)) as usize;
                 let hi = ((u + 4.0 * sigma + 1.0).ceil().max(0.0) as usize).min(vals.len());
-                (lo..hi).map(|i| vals[i] * (phi((i as f32 + 0.5 - u) / sigma) - phi((i as f32 - 0.5 - u) / sigma))).sum()
+                (lo..hi)
+                    .map(|i| {
+                        vals[i]
+                            * (phi((i as f32 + 0.5 - u) / sigma)
+                                - phi((i as f32 - 0.5 - u) / sigma))
+                    })
+                    .sum()
             })
             .collect();
         Profile { start, values }
@@ -52,7 +62,11 @@ impl Profile {
 fn phi(x: f32) -> f32 {
     let z = f64::from(x) / std::f64::consts::SQRT_2;
     let t = 1.0 / (1.0 + 0.327_591_1 * z.abs());
-    let y = 1.0 - (((((1.061_405_429 * t - 1.453_152_027) * t) + 1.421_413_741) * t - 0.284_496_736) * t + 0.254_829_592) * t * (-z * z).exp();
+    let y = 1.0
+        - (((((1.061_405_429 * t - 1.453_152_027) * t) + 1.421_413_741) * t - 0.284_496_736) * t
+            + 0.254_829_592)
+            * t
+            * (-z * z).exp();
     let erf = if z >= 0.0 { y } else { -y };
     (0.5 * (1.0 + erf)) as f32
 }
@@ -67,17 +81,26 @@ pub struct Light {
 impl Light {
     /// A uniform level over the whole projector.
     pub fn uniform(width: u32, height: u32, level: f32, blur: f32) -> Light {
-        Light { u: Profile::new(&vec![level; width as usize], blur), v: Profile::new(&vec![1.0; height as usize], blur) }
+        Light {
+            u: Profile::new(&vec![level; width as usize], blur),
+            v: Profile::new(&vec![1.0; height as usize], blur),
+        }
     }
 
     /// Vertical stripes: one value per projector column.
     pub fn columns(cols: &[f32], height: u32, blur: f32) -> Light {
-        Light { u: Profile::new(cols, blur), v: Profile::new(&vec![1.0; height as usize], blur) }
+        Light {
+            u: Profile::new(cols, blur),
+            v: Profile::new(&vec![1.0; height as usize], blur),
+        }
     }
 
     /// Horizontal stripes: one value per projector row.
     pub fn rows(width: u32, rows: &[f32], blur: f32) -> Light {
-        Light { u: Profile::new(&vec![1.0; width as usize], blur), v: Profile::new(rows, blur) }
+        Light {
+            u: Profile::new(&vec![1.0; width as usize], blur),
+            v: Profile::new(rows, blur),
+        }
     }
 
     /// Light at projector coordinate (u, v).
@@ -98,7 +121,10 @@ mod tests {
         let l = Light::columns(&cols, 10, 0.6);
         assert!((l.sample(9.5, 5.0) - 0.5).abs() < 1e-3);
         assert!(l.sample(7.0, 5.0) < 1e-3 && (l.sample(13.0, 5.0) - 1.0).abs() < 1e-3);
-        assert!((l.sample(9.0, 5.0) + l.sample(10.0, 5.0) - 1.0).abs() < 1e-3, "antisymmetric about the edge");
+        assert!(
+            (l.sample(9.0, 5.0) + l.sample(10.0, 5.0) - 1.0).abs() < 1e-3,
+            "antisymmetric about the edge"
+        );
         assert_eq!(l.sample(25.0, 5.0), 0.0, "dark outside the projector");
     }
 }

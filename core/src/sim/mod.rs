@@ -12,7 +12,9 @@ mod texture;
 
 pub use light::Light;
 pub use render::{RenderCache, Truth};
-pub use scene::{MaterialSection, ObjectSection, RenderSection, Scene, SceneFile, SimCamera, SimProjector};
+pub use scene::{
+    MaterialSection, ObjectSection, RenderSection, Scene, SceneFile, SimCamera, SimProjector,
+};
 pub use shapes::{Object, Shape};
 pub use texture::Texture;
 
@@ -51,8 +53,21 @@ impl Simulator {
             Pattern::Gray { axis, .. } => {
                 let img = layout.render(pattern);
                 match axis {
-                    CodeAxis::Column => Light::columns(&img[..w as usize].iter().map(|&p| f32::from(p) / 255.0).collect::<Vec<_>>(), h, blur),
-                    CodeAxis::Row => Light::rows(w, &img.chunks_exact(w as usize).map(|r| f32::from(r[0]) / 255.0).collect::<Vec<_>>(), blur),
+                    CodeAxis::Column => Light::columns(
+                        &img[..w as usize]
+                            .iter()
+                            .map(|&p| f32::from(p) / 255.0)
+                            .collect::<Vec<_>>(),
+                        h,
+                        blur,
+                    ),
+                    CodeAxis::Row => Light::rows(
+                        w,
+                        &img.chunks_exact(w as usize)
+                            .map(|r| f32::from(r[0]) / 255.0)
+                            .collect::<Vec<_>>(),
+                        blur,
+                    ),
                 }
             }
         }
@@ -61,20 +76,34 @@ impl Simulator {
     /// Render the camera frame of `pattern`; `frame` seeds the noise.
     pub fn frame(&self, layout: &CodeLayout, pattern: Pattern, frame: u64) -> GrayImage {
         let s = &self.scene;
-        let seed = s.render.seed.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ frame.wrapping_mul(0x9E37_79B9_7F4A_7C15);
-        let data = self.cache.render(&self.light(layout, pattern), s.exposure, s.noise, s.shot_noise, seed);
+        let seed = s.render.seed.wrapping_mul(0x2545_F491_4F6C_DD1D)
+            ^ frame.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        let data = self.cache.render(
+            &self.light(layout, pattern),
+            s.exposure,
+            s.noise,
+            s.shot_noise,
+            seed,
+        );
         GrayImage::from_u8(s.camera.width, s.camera.height, data)
     }
 
     /// Render the full multi-shot capture (SPEC §3 order); `progress(done, total)` per frame.
-    pub fn capture(&self, layout: &CodeLayout, seed_offset: u64, progress: &(dyn Fn(usize, usize) + Sync)) -> CaptureSet {
+    pub fn capture(
+        &self,
+        layout: &CodeLayout,
+        seed_offset: u64,
+        progress: &(dyn Fn(usize, usize) + Sync),
+    ) -> CaptureSet {
         let patterns = layout.sequence(self.scene.render.rows);
         let mut set = CaptureSet::new(*layout, self.scene.camera.width, self.scene.camera.height);
         for (i, p) in patterns.iter().enumerate() {
-            set.frames.insert(*p, self.frame(layout, *p, seed_offset + i as u64));
+            set.frames
+                .insert(*p, self.frame(layout, *p, seed_offset + i as u64));
             progress(i + 1, patterns.len());
         }
-        set.meta.insert("source".into(), toml::Value::String("ris simulate".into()));
+        set.meta
+            .insert("source".into(), toml::Value::String("ris simulate".into()));
         set
     }
 
@@ -99,13 +128,32 @@ pub struct SimOutput {
 
 /// Render `scene` into `out`: `capture/`, `reference/`, `sensor.toml` and `truth/`. Everything
 /// is written into a temporary sibling directory first and renamed into place at the end.
-pub fn simulate(scene: &Scene, out: &Path, progress: &(dyn Fn(&str, usize, usize) + Sync)) -> Result<SimOutput> {
-    if out.exists() && std::fs::read_dir(out).map_err(|e| Error::io(out, e))?.next().is_some() {
-        return Err(Error::invalid(out.display(), "output", "directory exists and is not empty; refusing to overwrite"));
+pub fn simulate(
+    scene: &Scene,
+    out: &Path,
+    progress: &(dyn Fn(&str, usize, usize) + Sync),
+) -> Result<SimOutput> {
+    if out.exists()
+        && std::fs::read_dir(out)
+            .map_err(|e| Error::io(out, e))?
+            .next()
+            .is_some()
+    {
+        return Err(Error::invalid(
+            out.display(),
+            "output",
+            "directory exists and is not empty; refusing to overwrite",
+        ));
     }
-    let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let parent = out
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
     create_dir(parent)?;
-    let name = out.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "sim".into());
+    let name = out
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "sim".into());
     let tmp = parent.join(format!(".{name}.partial-{}", std::process::id()));
     let result = write_simulation(scene, &tmp, progress);
     if let Err(e) = result {
@@ -116,17 +164,29 @@ pub fn simulate(scene: &Scene, out: &Path, progress: &(dyn Fn(&str, usize, usize
         std::fs::remove_dir(out).map_err(|e| Error::io(out, e))?;
     }
     std::fs::rename(&tmp, out).map_err(|e| Error::io(out, e))?;
-    Ok(SimOutput { capture: out.join("capture"), reference: out.join("reference"), sensor: out.join("sensor.toml"), truth: out.join("truth") })
+    Ok(SimOutput {
+        capture: out.join("capture"),
+        reference: out.join("reference"),
+        sensor: out.join("sensor.toml"),
+        truth: out.join("truth"),
+    })
 }
 
-fn write_simulation(scene: &Scene, dir: &Path, progress: &(dyn Fn(&str, usize, usize) + Sync)) -> Result<()> {
+fn write_simulation(
+    scene: &Scene,
+    dir: &Path,
+    progress: &(dyn Fn(&str, usize, usize) + Sync),
+) -> Result<()> {
     create_dir(dir)?;
     let sim = Simulator::new(scene.clone());
     let layout = sim.layout();
-    sim.capture(&layout, 0, &|i, n| progress("capture", i, n)).save(&dir.join("capture"))?;
+    sim.capture(&layout, 0, &|i, n| progress("capture", i, n))
+        .save(&dir.join("capture"))?;
     write_truth(&sim.cache.truth, scene, &dir.join("truth"))?;
     let reference = Simulator::new(scene.reference());
-    reference.capture(&layout, 1000, &|i, n| progress("reference", i, n)).save(&dir.join("reference"))?;
+    reference
+        .capture(&layout, 1000, &|i, n| progress("reference", i, n))
+        .save(&dir.join("reference"))?;
     sensor_file(scene).save(&dir.join("sensor.toml"))
 }
 
@@ -137,8 +197,18 @@ pub fn sensor_file(scene: &Scene) -> SensorFile {
     let c = scene.projector.center();
     SensorFile {
         camera: SensorFile::camera_section(&scene.camera),
-        projector: ProjectorSection { width: p.width, height: p.height, center: Some([c.x, c.y, c.z]), k: Some(p.k), dist: Some(p.dist), r: Some(p.r), t: Some(p.t) },
-        reference: Some(ReferenceSection { capture: "reference".into() }),
+        projector: ProjectorSection {
+            width: p.width,
+            height: p.height,
+            center: Some([c.x, c.y, c.z]),
+            k: Some(p.k),
+            dist: Some(p.dist),
+            r: Some(p.r),
+            t: Some(p.t),
+        },
+        reference: Some(ReferenceSection {
+            capture: "reference".into(),
+        }),
         residual: None,
         to_common: None,
     }
@@ -157,5 +227,10 @@ pub fn write_truth(truth: &Truth, scene: &Scene, dir: &Path) -> Result<()> {
     struct Names {
         materials: Vec<String>,
     }
-    write_toml(&dir.join("materials.toml"), &Names { materials: scene.materials.iter().map(|m| m.name.clone()).collect() })
+    write_toml(
+        &dir.join("materials.toml"),
+        &Names {
+            materials: scene.materials.iter().map(|m| m.name.clone()).collect(),
+        },
+    )
 }

@@ -67,7 +67,14 @@ impl RenderCache {
         let rows: Vec<Row> = (0..h)
             .into_par_iter()
             .map(|v| {
-                let mut row = Row { counts: vec![0; w], samples: Vec::new(), ambient: vec![0.0; w], xyz: vec![[f32::NAN; 3]; w], material: vec![255; w], lit: vec![0.0; w] };
+                let mut row = Row {
+                    counts: vec![0; w],
+                    samples: Vec::new(),
+                    ambient: vec![0.0; w],
+                    xyz: vec![[f32::NAN; 3]; w],
+                    material: vec![255; w],
+                    lit: vec![0.0; w],
+                };
                 for u in 0..w {
                     let mut lit_count = 0usize;
                     for sy in 0..ss {
@@ -75,7 +82,11 @@ impl RenderCache {
                             let uu = u as f64 + (sx as f64 + 0.5) / ss as f64 - 0.5;
                             let vv = v as f64 + (sy as f64 + 0.5) / ss as f64 - 0.5;
                             let d = scene.camera.ray(uu, vv);
-                            let Some((t, mut n, obj)) = scene.intersect(&oc, &d, 1e-6, f64::INFINITY) else { continue };
+                            let Some((t, mut n, obj)) =
+                                scene.intersect(&oc, &d, 1e-6, f64::INFINITY)
+                            else {
+                                continue;
+                            };
                             let p = oc + d * t;
                             if n.dot(&d) > 0.0 {
                                 n = -n;
@@ -83,9 +94,14 @@ impl RenderCache {
                             let mat = &scene.materials[scene.objects[obj].material];
                             let albedo = (mat.albedo * mat.texture.factor(&p)).clamp(0.0, 1.0);
                             row.ambient[u] += (albedo * scene.ambient * inv_n) as f32;
-                            if let Some((pu, pv, irradiance)) = direct_light(scene, &p, &n, &op, d0) {
+                            if let Some((pu, pv, irradiance)) = direct_light(scene, &p, &n, &op, d0)
+                            {
                                 lit_count += 1;
-                                row.samples.push(LitSample { u: pu as f32, v: pv as f32, weight: (albedo * irradiance * inv_n) as f32 });
+                                row.samples.push(LitSample {
+                                    u: pu as f32,
+                                    v: pv as f32,
+                                    weight: (albedo * irradiance * inv_n) as f32,
+                                });
                                 row.counts[u] += 1;
                             }
                         }
@@ -107,7 +123,13 @@ impl RenderCache {
             offsets: Vec::with_capacity(w * h + 1),
             samples: Vec::with_capacity(rows.iter().map(|r| r.samples.len()).sum()),
             ambient: Vec::with_capacity(w * h),
-            truth: Truth { width: w as u32, height: h as u32, xyz: Vec::with_capacity(w * h), material: Vec::with_capacity(w * h), lit: Vec::with_capacity(w * h) },
+            truth: Truth {
+                width: w as u32,
+                height: h as u32,
+                xyz: Vec::with_capacity(w * h),
+                material: Vec::with_capacity(w * h),
+                lit: Vec::with_capacity(w * h),
+            },
         };
         cache.offsets.push(0);
         for row in rows {
@@ -126,12 +148,20 @@ impl RenderCache {
 
     /// Render one 8-bit frame of the projector showing `light`: signal = 255 × exposure ×
     /// radiance, plus read and shot noise, rounded and clipped (saturation at 255).
-    pub fn render(&self, light: &Light, exposure: f64, noise: f64, shot_noise: f64, seed: u64) -> Vec<u8> {
+    pub fn render(
+        &self,
+        light: &Light,
+        exposure: f64,
+        noise: f64,
+        shot_noise: f64,
+        seed: u64,
+    ) -> Vec<u8> {
         let w = self.width as usize;
         let mut out = vec![0u8; w * self.height as usize];
         let gain = (255.0 * exposure) as f32;
         out.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
-            let mut rng = SmallRng::seed_from_u64(seed ^ (v as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+            let mut rng =
+                SmallRng::seed_from_u64(seed ^ (v as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
             for (u, px) in row.iter_mut().enumerate() {
                 let i = v * w + u;
                 let mut radiance = self.ambient[i];
@@ -140,7 +170,11 @@ impl RenderCache {
                 }
                 let signal = f64::from(gain * radiance);
                 let sigma = (noise * noise + shot_noise * signal).sqrt();
-                let z: f64 = if sigma > 0.0 { StandardNormal.sample(&mut rng) } else { 0.0 };
+                let z: f64 = if sigma > 0.0 {
+                    StandardNormal.sample(&mut rng)
+                } else {
+                    0.0
+                };
                 *px = (signal + sigma * z).round().clamp(0.0, 255.0) as u8;
             }
         });
@@ -159,7 +193,10 @@ fn direct_light(scene: &Scene, p: &Vec3, n: &Vec3, op: &Vec3, d0: f64) -> Option
         return None;
     }
     let (pu, pv) = scene.projector.project(p)?;
-    let (pw, ph) = (f64::from(scene.projector.width), f64::from(scene.projector.height));
+    let (pw, ph) = (
+        f64::from(scene.projector.width),
+        f64::from(scene.projector.height),
+    );
     if pu < -2.0 || pv < -2.0 || pu > pw + 1.0 || pv > ph + 1.0 {
         return None;
     }

@@ -146,7 +146,11 @@ pub struct RenderSection {
 
 impl Default for RenderSection {
     fn default() -> Self {
-        RenderSection { supersample: 4, seed: 1, rows: true }
+        RenderSection {
+            supersample: 4,
+            seed: 1,
+            rows: true,
+        }
     }
 }
 
@@ -235,26 +239,58 @@ impl Scene {
     /// Read and validate a scene file; mesh paths resolve against its directory.
     pub fn load(path: &Path) -> Result<Scene> {
         let file: SceneFile = read_toml(path)?;
-        Scene::from_file(file, path.parent().unwrap_or(Path::new(".")), &path.display().to_string())
+        Scene::from_file(
+            file,
+            path.parent().unwrap_or(Path::new(".")),
+            &path.display().to_string(),
+        )
     }
 
     /// Validate a parsed scene.
     pub fn from_file(file: SceneFile, base: &Path, ctx: &str) -> Result<Scene> {
         let c = &file.camera;
-        let cam_section = CameraSection { width: c.width, height: c.height, k: c.k, dist: c.dist, r: c.r, t: c.t };
+        let cam_section = CameraSection {
+            width: c.width,
+            height: c.height,
+            k: c.k,
+            dist: c.dist,
+            r: c.r,
+            t: c.t,
+        };
         let p = &file.projector;
         let sensor = SensorFile {
             camera: cam_section,
-            projector: crate::sensor::ProjectorSection { width: p.width, height: p.height, center: None, k: Some(p.k), dist: Some(p.dist), r: Some(p.r), t: Some(p.t) },
+            projector: crate::sensor::ProjectorSection {
+                width: p.width,
+                height: p.height,
+                center: None,
+                k: Some(p.k),
+                dist: Some(p.dist),
+                r: Some(p.r),
+                t: Some(p.t),
+            },
             reference: None,
             residual: None,
             to_common: None,
         };
         let s = crate::sensor::Sensor::from_file(&sensor, base, ctx)?;
-        let projector = s.projector.clone().ok_or_else(|| Error::invalid(ctx, "projector", "incomplete"))?;
-        for (field, v, lo) in [("camera.exposure", c.exposure, 0.0), ("camera.noise", c.noise, 0.0), ("camera.shot_noise", c.shot_noise, 0.0), ("projector.ambient", p.ambient, 0.0), ("projector.blur", p.blur, 0.0)] {
+        let projector = s
+            .projector
+            .clone()
+            .ok_or_else(|| Error::invalid(ctx, "projector", "incomplete"))?;
+        for (field, v, lo) in [
+            ("camera.exposure", c.exposure, 0.0),
+            ("camera.noise", c.noise, 0.0),
+            ("camera.shot_noise", c.shot_noise, 0.0),
+            ("projector.ambient", p.ambient, 0.0),
+            ("projector.blur", p.blur, 0.0),
+        ] {
             if !v.is_finite() || v < lo {
-                return Err(Error::invalid(ctx, field, format!("{v} must be a finite number ≥ {lo}")));
+                return Err(Error::invalid(
+                    ctx,
+                    field,
+                    format!("{v} must be a finite number ≥ {lo}"),
+                ));
             }
         }
         if file.render.supersample == 0 || file.render.supersample > 16 {
@@ -265,9 +301,19 @@ impl Scene {
         for (name, m) in &file.material {
             let f = |field: &str| format!("material.{name}.{field}");
             if !(0.0..=1.0).contains(&m.albedo) {
-                return Err(Error::invalid(ctx, f("albedo"), format!("{} is outside 0..1", m.albedo)));
+                return Err(Error::invalid(
+                    ctx,
+                    f("albedo"),
+                    format!("{} is outside 0..1", m.albedo),
+                ));
             }
-            for (field, v) in [("specular", m.specular), ("shininess", m.shininess), ("interreflection", m.interreflection), ("interreflection_radius", m.interreflection_radius), ("texture_amplitude", m.texture_amplitude)] {
+            for (field, v) in [
+                ("specular", m.specular),
+                ("shininess", m.shininess),
+                ("interreflection", m.interreflection),
+                ("interreflection_radius", m.interreflection_radius),
+                ("texture_amplitude", m.texture_amplitude),
+            ] {
                 if !v.is_finite() || v < 0.0 {
                     return Err(Error::invalid(ctx, f(field), format!("{v} must be ≥ 0")));
                 }
@@ -275,7 +321,9 @@ impl Scene {
             if m.specular > 0.0 || m.interreflection > 0.0 {
                 tracing::warn!(material = %name, "specular and inter-reflection are not simulated yet; the material renders as Lambertian");
             }
-            let texture = Texture::parse(m.texture.as_deref(), m.texture_amplitude, m.texture_period).map_err(|msg| Error::invalid(ctx, f("texture"), msg))?;
+            let texture =
+                Texture::parse(m.texture.as_deref(), m.texture_amplitude, m.texture_period)
+                    .map_err(|msg| Error::invalid(ctx, f("texture"), msg))?;
             index.insert(name.clone(), materials.len());
             materials.push(Material {
                 name: name.clone(),
@@ -290,9 +338,32 @@ impl Scene {
         let mut objects = Vec::new();
         for (i, o) in file.object.iter().enumerate() {
             let f = |field: &str| format!("object[{i}].{field}");
-            let material = *index.get(&o.material).ok_or_else(|| Error::invalid(ctx, f("material"), format!("no [material.{}] in the scene", o.material)))?;
-            let need3 = |v: Option<[f64; 3]>, field: &str| v.filter(|a| a.iter().all(|x| x.is_finite())).ok_or_else(|| Error::invalid(ctx, f(field), format!("`{}` needs a finite {field}", o.shape)));
-            let need1 = |v: Option<f64>, field: &str| v.filter(|x| x.is_finite() && *x > 0.0).ok_or_else(|| Error::invalid(ctx, f(field), format!("`{}` needs a positive {field}", o.shape)));
+            let material = *index.get(&o.material).ok_or_else(|| {
+                Error::invalid(
+                    ctx,
+                    f("material"),
+                    format!("no [material.{}] in the scene", o.material),
+                )
+            })?;
+            let need3 = |v: Option<[f64; 3]>, field: &str| {
+                v.filter(|a| a.iter().all(|x| x.is_finite()))
+                    .ok_or_else(|| {
+                        Error::invalid(
+                            ctx,
+                            f(field),
+                            format!("`{}` needs a finite {field}", o.shape),
+                        )
+                    })
+            };
+            let need1 = |v: Option<f64>, field: &str| {
+                v.filter(|x| x.is_finite() && *x > 0.0).ok_or_else(|| {
+                    Error::invalid(
+                        ctx,
+                        f(field),
+                        format!("`{}` needs a positive {field}", o.shape),
+                    )
+                })
+            };
             let shape = match o.shape.as_str() {
                 "plane" => Shape::Plane,
                 "box" => {
@@ -300,19 +371,47 @@ impl Scene {
                     if size.iter().any(|s| *s <= 0.0) {
                         return Err(Error::invalid(ctx, f("size"), "must be positive"));
                     }
-                    Shape::Box { center: Vec3::from(need3(o.center, "center")?), half: Vec3::from(size) / 2.0 }
+                    Shape::Box {
+                        center: Vec3::from(need3(o.center, "center")?),
+                        half: Vec3::from(size) / 2.0,
+                    }
                 }
-                "sphere" => Shape::Sphere { center: Vec3::from(need3(o.center, "center")?), radius: need1(o.radius, "radius")? },
-                "dome" => Shape::dome(Vec3::from(need3(o.center, "center")?), need1(o.radius, "radius")?, need1(o.height, "height")?),
-                "cylinder" => Shape::Cylinder { center: Vec3::from(need3(o.center, "center")?), radius: need1(o.radius, "radius")?, half_height: need1(o.height, "height")? / 2.0 },
+                "sphere" => Shape::Sphere {
+                    center: Vec3::from(need3(o.center, "center")?),
+                    radius: need1(o.radius, "radius")?,
+                },
+                "dome" => Shape::dome(
+                    Vec3::from(need3(o.center, "center")?),
+                    need1(o.radius, "radius")?,
+                    need1(o.height, "height")?,
+                ),
+                "cylinder" => Shape::Cylinder {
+                    center: Vec3::from(need3(o.center, "center")?),
+                    radius: need1(o.radius, "radius")?,
+                    half_height: need1(o.height, "height")? / 2.0,
+                },
                 "mesh" => {
-                    let file_name = o.file.as_ref().ok_or_else(|| Error::invalid(ctx, f("file"), "a mesh needs an STL file"))?;
+                    let file_name = o.file.as_ref().ok_or_else(|| {
+                        Error::invalid(ctx, f("file"), "a mesh needs an STL file")
+                    })?;
                     let mut mesh = TriangleMesh::load_stl(&base.join(file_name))?;
                     let r: Mat3 = rotation_xyz_deg(o.rotation_deg.unwrap_or([0.0; 3]));
-                    mesh.transform(&r, o.scale.unwrap_or(1.0), &Vec3::from(o.position.unwrap_or([0.0; 3])));
+                    mesh.transform(
+                        &r,
+                        o.scale.unwrap_or(1.0),
+                        &Vec3::from(o.position.unwrap_or([0.0; 3])),
+                    );
                     Shape::Mesh(Box::new(Bvh::new(mesh)))
                 }
-                other => return Err(Error::invalid(ctx, f("shape"), format!("unknown shape `{other}` (plane, box, sphere, dome, cylinder, mesh)"))),
+                other => {
+                    return Err(Error::invalid(
+                        ctx,
+                        f("shape"),
+                        format!(
+                            "unknown shape `{other}` (plane, box, sphere, dome, cylinder, mesh)"
+                        ),
+                    ))
+                }
             };
             objects.push(Object { shape, material });
         }
@@ -340,14 +439,31 @@ impl Scene {
         let mut s = self.clone();
         s.objects.retain(|o| matches!(o.shape, Shape::Plane));
         if s.objects.is_empty() {
-            s.materials.push(Material { name: "reference_plane".into(), albedo: 0.7, specular: 0.0, shininess: 0.0, interreflection: 0.0, interreflection_radius: 0.0, texture: Texture::None });
-            s.objects.push(Object { shape: Shape::Plane, material: s.materials.len() - 1 });
+            s.materials.push(Material {
+                name: "reference_plane".into(),
+                albedo: 0.7,
+                specular: 0.0,
+                shininess: 0.0,
+                interreflection: 0.0,
+                interreflection_radius: 0.0,
+                texture: Texture::None,
+            });
+            s.objects.push(Object {
+                shape: Shape::Plane,
+                material: s.materials.len() - 1,
+            });
         }
         s
     }
 
     /// Nearest hit along `o + t d`, `t` in `(t_min, t_max)`: (t, outward unit normal, object).
-    pub fn intersect(&self, o: &Vec3, d: &Vec3, t_min: f64, t_max: f64) -> Option<(f64, Vec3, usize)> {
+    pub fn intersect(
+        &self,
+        o: &Vec3,
+        d: &Vec3,
+        t_min: f64,
+        t_max: f64,
+    ) -> Option<(f64, Vec3, usize)> {
         let mut best: Option<(f64, Vec3, usize)> = None;
         let mut limit = t_max;
         for (i, obj) in self.objects.iter().enumerate() {

@@ -59,7 +59,12 @@ impl Shape {
     /// A dome of base radius `r` and height `h` standing on `center`.
     pub fn dome(center: Vec3, r: f64, h: f64) -> Shape {
         let rs = (r * r + h * h) / (2.0 * h);
-        Shape::Dome { sphere_center: Vec3::new(center.x, center.y, center.z + h - rs), sphere_radius: rs, base: center.z, base_radius: r }
+        Shape::Dome {
+            sphere_center: Vec3::new(center.x, center.y, center.z + h - rs),
+            sphere_radius: rs,
+            base: center.z,
+            base_radius: r,
+        }
     }
 
     /// Nearest hit with `t` in `(t_min, t_max)`, with the outward unit normal.
@@ -93,16 +98,34 @@ impl Shape {
                 if lo > hi {
                     return None;
                 }
-                let (t, k) = if ok(lo) { (lo, axis_lo) } else if ok(hi) { (hi, axis_hi) } else { return None };
+                let (t, k) = if ok(lo) {
+                    (lo, axis_lo)
+                } else if ok(hi) {
+                    (hi, axis_hi)
+                } else {
+                    return None;
+                };
                 let p = o + d * t;
                 let mut n = Vec3::zeros();
                 n[k] = (p[k] - center[k]).signum();
                 Some((t, n))
             }
-            Shape::Sphere { center, radius } => sphere_hits(o, d, center, *radius).into_iter().flatten().find(|&t| ok(t)).map(|t| (t, (o + d * t - center) / *radius)),
-            Shape::Dome { sphere_center, sphere_radius, base, base_radius } => {
+            Shape::Sphere { center, radius } => sphere_hits(o, d, center, *radius)
+                .into_iter()
+                .flatten()
+                .find(|&t| ok(t))
+                .map(|t| (t, (o + d * t - center) / *radius)),
+            Shape::Dome {
+                sphere_center,
+                sphere_radius,
+                base,
+                base_radius,
+            } => {
                 let mut best: Option<(f64, Vec3)> = None;
-                for t in sphere_hits(o, d, sphere_center, *sphere_radius).into_iter().flatten() {
+                for t in sphere_hits(o, d, sphere_center, *sphere_radius)
+                    .into_iter()
+                    .flatten()
+                {
                     if ok(t) && (o.z + d.z * t) >= *base {
                         best = Some((t, (o + d * t - sphere_center) / *sphere_radius));
                         break;
@@ -115,7 +138,11 @@ impl Shape {
                 }
                 best
             }
-            Shape::Cylinder { center, radius, half_height } => {
+            Shape::Cylinder {
+                center,
+                radius,
+                half_height,
+            } => {
                 let mut best: Option<(f64, Vec3)> = None;
                 let (ox, oy) = (o.x - center.x, o.y - center.y);
                 let a = d.x * d.x + d.y * d.y;
@@ -129,13 +156,19 @@ impl Shape {
                             let z = o.z + d.z * t;
                             if ok(t) && (z - center.z).abs() <= *half_height {
                                 let p = o + d * t;
-                                best = Some((t, Vec3::new(p.x - center.x, p.y - center.y, 0.0) / *radius));
+                                best = Some((
+                                    t,
+                                    Vec3::new(p.x - center.x, p.y - center.y, 0.0) / *radius,
+                                ));
                                 break;
                             }
                         }
                     }
                 }
-                for (z, nz) in [(center.z + half_height, 1.0), (center.z - half_height, -1.0)] {
+                for (z, nz) in [
+                    (center.z + half_height, 1.0),
+                    (center.z - half_height, -1.0),
+                ] {
                     if let Some(t) = disk(o, d, z, center.x, center.y, *radius) {
                         if ok(t) && best.is_none_or(|b| t < b.0) {
                             best = Some((t, Vec3::new(0.0, 0.0, nz)));
@@ -181,10 +214,29 @@ mod tests {
         let d = -Vec3::z();
         let cases: [(Shape, f64); 5] = [
             (Shape::Plane, 100.0),
-            (Shape::Box { center: Vec3::new(0.0, 0.0, 20.0), half: Vec3::new(10.0, 10.0, 20.0) }, 60.0),
-            (Shape::Sphere { center: Vec3::new(0.0, 0.0, 30.0), radius: 30.0 }, 40.0),
+            (
+                Shape::Box {
+                    center: Vec3::new(0.0, 0.0, 20.0),
+                    half: Vec3::new(10.0, 10.0, 20.0),
+                },
+                60.0,
+            ),
+            (
+                Shape::Sphere {
+                    center: Vec3::new(0.0, 0.0, 30.0),
+                    radius: 30.0,
+                },
+                40.0,
+            ),
             (Shape::dome(Vec3::zeros(), 50.0, 20.0), 80.0),
-            (Shape::Cylinder { center: Vec3::new(0.0, 0.0, 25.0), radius: 10.0, half_height: 25.0 }, 50.0),
+            (
+                Shape::Cylinder {
+                    center: Vec3::new(0.0, 0.0, 25.0),
+                    radius: 10.0,
+                    half_height: 25.0,
+                },
+                50.0,
+            ),
         ];
         for (shape, want) in cases {
             let (t, n) = shape.intersect(&o, &d, 1e-9, f64::INFINITY).expect("hit");
@@ -192,8 +244,14 @@ mod tests {
             assert!((n - Vec3::z()).norm() < 1e-9, "{shape:?}: n = {n}");
         }
         // Side of the cylinder, seen horizontally.
-        let cyl = Shape::Cylinder { center: Vec3::new(0.0, 0.0, 25.0), radius: 10.0, half_height: 25.0 };
-        let (t, n) = cyl.intersect(&Vec3::new(-50.0, 0.0, 10.0), &Vec3::x(), 0.0, f64::INFINITY).expect("side");
+        let cyl = Shape::Cylinder {
+            center: Vec3::new(0.0, 0.0, 25.0),
+            radius: 10.0,
+            half_height: 25.0,
+        };
+        let (t, n) = cyl
+            .intersect(&Vec3::new(-50.0, 0.0, 10.0), &Vec3::x(), 0.0, f64::INFINITY)
+            .expect("side");
         assert!((t - 40.0).abs() < 1e-9 && (n + Vec3::x()).norm() < 1e-9);
     }
 }

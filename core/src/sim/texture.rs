@@ -52,7 +52,9 @@ impl Texture {
 }
 
 fn hash(i: i64, j: i64, k: i64) -> f64 {
-    let mut h = (i.wrapping_mul(73_856_093) ^ j.wrapping_mul(19_349_663) ^ k.wrapping_mul(83_492_791)) as u64;
+    let mut h = (i.wrapping_mul(73_856_093)
+        ^ j.wrapping_mul(19_349_663)
+        ^ k.wrapping_mul(83_492_791)) as u64;
     h ^= h >> 33;
     h = h.wrapping_mul(0xff51_afd7_ed55_8ccd);
     h ^= h >> 33;
@@ -70,8 +72,16 @@ fn value_noise(p: Vec3) -> f64 {
     let lerp = |a: f64, b: f64, t: f64| a + (b - a) * t;
     let c = |a, b, c| hash(i + a, j + b, k + c);
     lerp(
-        lerp(lerp(c(0, 0, 0), c(1, 0, 0), u), lerp(c(0, 1, 0), c(1, 1, 0), u), v),
-        lerp(lerp(c(0, 0, 1), c(1, 0, 1), u), lerp(c(0, 1, 1), c(1, 1, 1), u), v),
+        lerp(
+            lerp(c(0, 0, 0), c(1, 0, 0), u),
+            lerp(c(0, 1, 0), c(1, 1, 0), u),
+            v,
+        ),
+        lerp(
+            lerp(c(0, 0, 1), c(1, 0, 1), u),
+            lerp(c(0, 1, 1), c(1, 1, 1), u),
+            v,
+        ),
         w,
     )
 }

@@ -10,7 +10,11 @@ use ris_core::sensor::ModelChoice;
 use ris_daemon::commands;
 
 #[derive(Parser)]
-#[command(name = "ris", version, about = "RIS structured-light tools: patterns, decode, reconstruct, simulate")]
+#[command(
+    name = "ris",
+    version,
+    about = "RIS structured-light tools: patterns, decode, reconstruct, simulate"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -37,7 +41,14 @@ struct DecodeArgs {
 
 impl DecodeArgs {
     fn params(&self) -> DecodeParams {
-        DecodeParams { contrast_threshold: self.contrast_threshold, bit_threshold: self.bit_threshold, edge_window: self.edge_window, edge_erosion: self.edge_erosion, albedo_weight_power: self.albedo_weight_power, ..DecodeParams::default() }
+        DecodeParams {
+            contrast_threshold: self.contrast_threshold,
+            bit_threshold: self.bit_threshold,
+            edge_window: self.edge_window,
+            edge_erosion: self.edge_erosion,
+            albedo_weight_power: self.albedo_weight_power,
+            ..DecodeParams::default()
+        }
     }
 }
 
@@ -121,16 +132,49 @@ fn main() -> Result<()> {
     ris_daemon::logging::init("info");
     let cli = Cli::parse();
     match cli.command {
-        Command::Patterns { projector, column_step, row_step, no_rows, flats, out } => {
+        Command::Patterns {
+            projector,
+            column_step,
+            row_step,
+            no_rows,
+            flats,
+            out,
+        } => {
             let (width, height) = commands::parse_size(&projector)?;
-            anyhow::ensure!(column_step >= 1 && row_step >= 1, "--column-step and --row-step must be ≥ 1");
-            let n = commands::patterns::run(CodeLayout { width, height, column_step, row_step }, !no_rows, flats, &out)?;
-            println!("wrote {n} patterns for a {width}x{height} projector to {}", out.display());
+            anyhow::ensure!(
+                column_step >= 1 && row_step >= 1,
+                "--column-step and --row-step must be ≥ 1"
+            );
+            let n = commands::patterns::run(
+                CodeLayout {
+                    width,
+                    height,
+                    column_step,
+                    row_step,
+                },
+                !no_rows,
+                flats,
+                &out,
+            )?;
+            println!(
+                "wrote {n} patterns for a {width}x{height} projector to {}",
+                out.display()
+            );
         }
-        Command::Decode { capture, out, decode } => {
+        Command::Decode {
+            capture,
+            out,
+            decode,
+        } => {
             commands::decode::run(&capture, &decode.params(), &out)?;
         }
-        Command::Reconstruct { sensor, capture, out, model, decode } => {
+        Command::Reconstruct {
+            sensor,
+            capture,
+            out,
+            model,
+            decode,
+        } => {
             let model = match model {
                 Model::Auto => ModelChoice::Auto,
                 Model::Parallax => ModelChoice::Parallax,

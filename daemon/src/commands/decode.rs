@@ -9,11 +9,15 @@ use ris_core::decode::{decode, DecodeParams, Decoded};
 
 /// Decode the capture at `capture` and write the maps into `out`.
 pub fn run(capture: &Path, params: &DecodeParams, out: &Path) -> Result<Decoded> {
-    let set = CaptureSet::load(capture).with_context(|| format!("reading capture set {}", capture.display()))?;
+    let set = CaptureSet::load(capture)
+        .with_context(|| format!("reading capture set {}", capture.display()))?;
     let t = Instant::now();
-    let decoded = decode(&set, params).with_context(|| format!("decoding {}", capture.display()))?;
+    let decoded =
+        decode(&set, params).with_context(|| format!("decoding {}", capture.display()))?;
     let elapsed = t.elapsed();
-    decoded.save(out).with_context(|| format!("writing decoded maps to {}", out.display()))?;
+    decoded
+        .save(out)
+        .with_context(|| format!("writing decoded maps to {}", out.display()))?;
     let total = decoded.col.len();
     let valid = decoded.valid_count();
     println!(

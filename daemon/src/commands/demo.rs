@@ -47,7 +47,9 @@ pub fn run(scene: Option<&Path>, out: &Path) -> Result<DemoResult> {
     let cloud = rec.reconstruct(&decoded)?;
     let elapsed = t.elapsed();
     let cloud_path = out.join("cloud.ply");
-    cloud.write_ply(&cloud_path).with_context(|| format!("writing {}", cloud_path.display()))?;
+    cloud
+        .write_ply(&cloud_path)
+        .with_context(|| format!("writing {}", cloud_path.display()))?;
     // Ground truth comes from the same scene, ray-cast again (cheap) rather than re-read.
     let s = Scene::load(&scene_path)?;
     let truth = Simulator::new(s).cache.truth;
@@ -55,8 +57,16 @@ pub fn run(scene: Option<&Path>, out: &Path) -> Result<DemoResult> {
     let summary = out.join("accuracy.json");
     let json = serde_json::to_string_pretty(&accuracy)?;
     ris_core::io::write_atomic(&summary, json.as_bytes())?;
-    println!("reconstructed {} points in {:.2} s (reference fit, decode, parallax model)", cloud.len(), elapsed.as_secs_f64());
+    println!(
+        "reconstructed {} points in {:.2} s (reference fit, decode, parallax model)",
+        cloud.len(),
+        elapsed.as_secs_f64()
+    );
     println!("accuracy against ground truth: {accuracy}");
     println!("wrote {} and {}", cloud_path.display(), summary.display());
-    Ok(DemoResult { cloud: cloud_path, summary, accuracy })
+    Ok(DemoResult {
+        cloud: cloud_path,
+        summary,
+        accuracy,
+    })
 }

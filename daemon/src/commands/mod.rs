@@ -10,9 +10,17 @@ use anyhow::{bail, Context, Result};
 
 /// Parse `WIDTHxHEIGHT` (e.g. `1024x768`).
 pub fn parse_size(s: &str) -> Result<(u32, u32)> {
-    let (w, h) = s.split_once(['x', 'X']).with_context(|| format!("`{s}` is not a size like 1024x768"))?;
-    let w: u32 = w.trim().parse().with_context(|| format!("width in `{s}` is not a number"))?;
-    let h: u32 = h.trim().parse().with_context(|| format!("height in `{s}` is not a number"))?;
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .with_context(|| format!("`{s}` is not a size like 1024x768"))?;
+    let w: u32 = w
+        .trim()
+        .parse()
+        .with_context(|| format!("width in `{s}` is not a number"))?;
+    let h: u32 = h
+        .trim()
+        .parse()
+        .with_context(|| format!("height in `{s}` is not a number"))?;
     if w == 0 || h == 0 || w > 65536 || h > 65536 {
         bail!("size `{s}` is out of range (1..=65536 per side)");
     }

@@ -17,7 +17,9 @@ pub fn run(layout: CodeLayout, with_rows: bool, flats: bool, out: &Path) -> Resu
     }
     patterns.par_iter().try_for_each(|p| {
         let path = out.join(format!("{}.png", p.name()));
-        GrayImage::from_u8(layout.width, layout.height, layout.render(*p)).save_png(&path).with_context(|| format!("writing {}", path.display()))
+        GrayImage::from_u8(layout.width, layout.height, layout.render(*p))
+            .save_png(&path)
+            .with_context(|| format!("writing {}", path.display()))
     })?;
     tracing::info!(count = patterns.len(), dir = %out.display(), "patterns written");
     Ok(patterns.len())

@@ -10,19 +10,33 @@ use ris_core::decode::{decode, DecodeParams};
 use ris_core::sensor::{ModelChoice, Reconstructor, Sensor};
 
 /// Reconstruct `capture` with `sensor` and write `out` (PLY); returns the cloud.
-pub fn run(sensor: &Path, capture: &Path, model: ModelChoice, params: &DecodeParams, out: &Path) -> Result<PointCloud> {
-    let s = Sensor::load(sensor).with_context(|| format!("reading sensor file {}", sensor.display()))?;
+pub fn run(
+    sensor: &Path,
+    capture: &Path,
+    model: ModelChoice,
+    params: &DecodeParams,
+    out: &Path,
+) -> Result<PointCloud> {
+    let s = Sensor::load(sensor)
+        .with_context(|| format!("reading sensor file {}", sensor.display()))?;
     let t = Instant::now();
-    let rec = Reconstructor::new(&s, model, params).with_context(|| format!("preparing sensor {}", sensor.display()))?;
+    let rec = Reconstructor::new(&s, model, params)
+        .with_context(|| format!("preparing sensor {}", sensor.display()))?;
     let prepare = t.elapsed();
-    let set = CaptureSet::load(capture).with_context(|| format!("reading capture set {}", capture.display()))?;
+    let set = CaptureSet::load(capture)
+        .with_context(|| format!("reading capture set {}", capture.display()))?;
     let t = Instant::now();
-    let decoded = decode(&set, params).with_context(|| format!("decoding {}", capture.display()))?;
+    let decoded =
+        decode(&set, params).with_context(|| format!("decoding {}", capture.display()))?;
     let t_decode = t.elapsed();
     let t = Instant::now();
-    let cloud = rec.reconstruct(&decoded).with_context(|| format!("reconstructing {}", capture.display()))?;
+    let cloud = rec
+        .reconstruct(&decoded)
+        .with_context(|| format!("reconstructing {}", capture.display()))?;
     let t_rec = t.elapsed();
-    cloud.write_ply(out).with_context(|| format!("writing {}", out.display()))?;
+    cloud
+        .write_ply(out)
+        .with_context(|| format!("writing {}", out.display()))?;
     println!(
         "{} points ({} model) from {} valid of {} pixels; prepare {:.0} ms, decode {:.0} ms, reconstruct {:.0} ms; wrote {}",
         cloud.len(),

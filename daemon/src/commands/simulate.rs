@@ -11,7 +11,13 @@ use crate::progress;
 /// Render `scene` into `out` with a progress bar.
 pub fn run(scene: &Path, out: &Path) -> Result<SimOutput> {
     let s = Scene::load(scene).with_context(|| format!("reading scene {}", scene.display()))?;
-    let frames = (if s.render.rows { 2 + 2 * (s.projector.width.next_power_of_two().trailing_zeros() + s.projector.height.next_power_of_two().trailing_zeros()) } else { 2 + 2 * s.projector.width.next_power_of_two().trailing_zeros() }) as u64;
+    let frames = (if s.render.rows {
+        2 + 2
+            * (s.projector.width.next_power_of_two().trailing_zeros()
+                + s.projector.height.next_power_of_two().trailing_zeros())
+    } else {
+        2 + 2 * s.projector.width.next_power_of_two().trailing_zeros()
+    }) as u64;
     let pb = progress::bar(2 * frames, "rendering");
     let stage = Mutex::new(String::new());
     let result = simulate(&s, out, &|what, _, _| {
@@ -24,7 +30,15 @@ pub fn run(scene: &Path, out: &Path) -> Result<SimOutput> {
         pb.inc(1);
     });
     pb.finish_and_clear();
-    let o = result.with_context(|| format!("simulating {} into {}", scene.display(), out.display()))?;
-    println!("simulated {}: capture {}, reference {}, sensor {}, truth {}", scene.display(), o.capture.display(), o.reference.display(), o.sensor.display(), o.truth.display());
+    let o =
+        result.with_context(|| format!("simulating {} into {}", scene.display(), out.display()))?;
+    println!(
+        "simulated {}: capture {}, reference {}, sensor {}, truth {}",
+        scene.display(),
+        o.capture.display(),
+        o.reference.display(),
+        o.sensor.display(),
+        o.truth.display()
+    );
     Ok(o)
 }

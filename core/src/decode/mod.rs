@@ -294,77 +294,76 @@ fn decode_planes<T: Sample>(
         bit: (params.bit_threshold * scale).round() as i32,
     };
     let layout = capture.layout;
-    let run_axis = |axis: CodeAxis,
-                    frames: &AxisFrames<'_, T>|
-     -> (Vec<f32>, Vec<f32>, Binarization) {
-        let t0 = std::time::Instant::now();
-        let codes = binarize::codes(
-            w,
-            h,
-            planes.white,
-            planes.black,
-            &frames.pat,
-            frames.inv.as_deref(),
-            layout.cells(axis),
-            thresholds,
-        );
-        let t_bin = t0.elapsed();
-        let dir = scan_direction(w, h, &codes);
-        let tolerance = params.consistency_cells * layout.step(axis) as f32;
-        let bin = if frames.inv.is_some() {
-            Binarization::Dual
-        } else {
-            Binarization::Threshold
+    let run_axis =
+        |axis: CodeAxis, frames: &AxisFrames<'_, T>| -> (Vec<f32>, Vec<f32>, Binarization) {
+            let t0 = std::time::Instant::now();
+            let codes = binarize::codes(
+                w,
+                h,
+                planes.white,
+                planes.black,
+                &frames.pat,
+                frames.inv.as_deref(),
+                layout.cells(axis),
+                thresholds,
+            );
+            let t_bin = t0.elapsed();
+            let dir = scan_direction(w, h, &codes);
+            let tolerance = params.consistency_cells * layout.step(axis) as f32;
+            let bin = if frames.inv.is_some() {
+                Binarization::Dual
+            } else {
+                Binarization::Threshold
+            };
+            let signal = line_shift::Signal {
+                white: planes.white,
+                black: planes.black,
+                pat: &frames.pat,
+                inv: frames.inv.as_deref(),
+            };
+            let (coord, quality) = line_shift::subpixel(
+                w,
+                h,
+                &codes,
+                &signal,
+                dir,
+                layout.bits(axis),
+                layout.step(axis),
+                params,
+            );
+            let t_sub = t0.elapsed();
+            // The filters look across the scan as rows; a column scan comes back transposed.
+            let (lw, lh) = if dir == ScanDirection::AlongRows {
+                (w, h)
+            } else {
+                (h, w)
+            };
+            let coord = filter_across(lw, lh, &coord, tolerance, params);
+            let t_filter = t0.elapsed();
+            let need_quality = axis == CodeAxis::Column;
+            let (coord, quality) = match dir {
+                ScanDirection::AlongRows => (coord, quality),
+                ScanDirection::AlongColumns => (
+                    transpose(&coord, h, w),
+                    if need_quality {
+                        transpose(&quality, h, w)
+                    } else {
+                        Vec::new()
+                    },
+                ),
+            };
+            let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
+            tracing::debug!(
+                ?axis,
+                ?dir,
+                binarize_ms = ms(t_bin),
+                line_shift_ms = ms(t_sub - t_bin),
+                filters_ms = ms(t_filter - t_sub),
+                total_ms = ms(t0.elapsed()),
+                "axis decoded"
+            );
+            (coord, quality, bin)
         };
-        let signal = line_shift::Signal {
-            white: planes.white,
-            black: planes.black,
-            pat: &frames.pat,
-            inv: frames.inv.as_deref(),
-        };
-        let (coord, quality) = line_shift::subpixel(
-            w,
-            h,
-            &codes,
-            &signal,
-            dir,
-            layout.bits(axis),
-            layout.step(axis),
-            params,
-        );
-        let t_sub = t0.elapsed();
-        // The filters look across the scan as rows; a column scan comes back transposed.
-        let (lw, lh) = if dir == ScanDirection::AlongRows {
-            (w, h)
-        } else {
-            (h, w)
-        };
-        let coord = filter_across(lw, lh, &coord, tolerance, params);
-        let t_filter = t0.elapsed();
-        let need_quality = axis == CodeAxis::Column;
-        let (coord, quality) = match dir {
-            ScanDirection::AlongRows => (coord, quality),
-            ScanDirection::AlongColumns => (
-                transpose(&coord, h, w),
-                if need_quality {
-                    transpose(&quality, h, w)
-                } else {
-                    Vec::new()
-                },
-            ),
-        };
-        let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
-        tracing::debug!(
-            ?axis,
-            ?dir,
-            binarize_ms = ms(t_bin),
-            line_shift_ms = ms(t_sub - t_bin),
-            filters_ms = ms(t_filter - t_sub),
-            total_ms = ms(t0.elapsed()),
-            "axis decoded"
-        );
-        (coord, quality, bin)
-    };
     let (col, quality, binarization) = run_axis(CodeAxis::Column, &planes.col);
     let row = planes.row.as_ref().map(|f| run_axis(CodeAxis::Row, f).0);
     let mode_factor = if binarization == Binarization::Dual {

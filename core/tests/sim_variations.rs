@@ -124,3 +124,53 @@ fn projector_on_the_other_side_and_a_tilted_camera_viewing_a_mesh() {
         &run(f, dir.path()),
     );
 }
+
+#[test]
+fn residual_field_from_the_sensor_file_is_applied() {
+    // A constant residual C = 0.5 mm (A = B = 0) must lower every height by 0.5 mm.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut f = demo_file();
+    f.camera.width = 200;
+    f.camera.height = 150;
+    f.camera.k = [[444.5, 0.0, 99.5], [0.0, 444.5, 74.5], [0.0, 0.0, 1.0]];
+    // The projector scaled down with the camera, so its stripes stay resolvable.
+    f.projector.width = 256;
+    f.projector.height = 192;
+    f.projector.k = [[450.0, 0.0, 127.5], [0.0, 450.0, 95.5], [0.0, 0.0, 1.0]];
+    let scene = Scene::from_file(f, Path::new("."), "small demo").expect("scene");
+    let out = dir.path().join("sim");
+    let o = ris_core::sim::simulate(&scene, &out, &|_, _, _| {}).expect("simulate");
+    let params = DecodeParams::default();
+    let sensor = ris_core::sensor::Sensor::load(&o.sensor).expect("sensor");
+    let capture = ris_core::capture::CaptureSet::load(&o.capture).expect("capture");
+    let dec = decode(&capture, &params).expect("decode");
+    let plain = Reconstructor::new(&sensor, ris_core::sensor::ModelChoice::Parallax, &params)
+        .expect("model")
+        .reconstruct(&dec)
+        .expect("points");
+    let residual: Vec<f32> = (0..200 * 150).flat_map(|_| [0.0, 0.0, 0.5]).collect();
+    ris_core::io::npy::write(&out.join("residual.npy"), &[150, 200, 3], &residual).expect("npy");
+    let text = std::fs::read_to_string(&o.sensor).expect("read")
+        + "\n[residual]\nfile = \"residual.npy\"\n";
+    std::fs::write(&o.sensor, text).expect("write");
+    let sensor = ris_core::sensor::Sensor::load(&o.sensor).expect("sensor with residual");
+    let corrected = Reconstructor::new(&sensor, ris_core::sensor::ModelChoice::Parallax, &params)
+        .expect("model")
+        .reconstruct(&dec)
+        .expect("points");
+    assert_eq!(plain.len(), corrected.len());
+    for (a, b) in plain.points.iter().zip(&corrected.points) {
+        assert!((a[2] - b[2] - 0.5).abs() < 1e-3, "z {} -> {}", a[2], b[2]);
+    }
+    // A residual of the wrong shape is refused with the file named.
+    ris_core::io::npy::write(&out.join("residual.npy"), &[10, 10, 3], &vec![0f32; 300])
+        .expect("npy");
+    let err = Reconstructor::new(&sensor, ris_core::sensor::ModelChoice::Parallax, &params)
+        .err()
+        .expect("shape error")
+        .to_string();
+    assert!(
+        err.contains("residual.npy") && err.contains("shape"),
+        "{err}"
+    );
+}

@@ -34,32 +34,42 @@ pub(super) fn codes<T: Sample>(
             let bl = &black[base..base + w];
             row.fill(0);
             undecided.fill(false);
+            // Zipped iterators (no bounds checks) and the threshold test hoisted out of the
+            // pixel loop keep these loops vectorisable.
             for (j, p) in pat.iter().enumerate() {
                 let p = &p[base..base + w];
                 match inv {
                     Some(inv) => {
                         let q = &inv[j][base..base + w];
-                        for x in 0..w {
-                            let s = p[x].to_i32() - q[x].to_i32();
-                            row[x] = (row[x] << 1) | i32::from(s > 0);
-                            undecided[x] |= th.bit > 0 && s.abs() <= th.bit;
+                        for (r, (&a, &b)) in row.iter_mut().zip(p.iter().zip(q)) {
+                            *r = (*r << 1) | i32::from(a.to_i32() > b.to_i32());
+                        }
+                        if th.bit > 0 {
+                            for (u, (&a, &b)) in undecided.iter_mut().zip(p.iter().zip(q)) {
+                                *u |= (a.to_i32() - b.to_i32()).abs() <= th.bit;
+                            }
                         }
                     }
                     None => {
-                        for x in 0..w {
-                            // 2P − (W + K): the pattern against the mid level, at the same scale
-                            // as P − I.
-                            let s = 2 * p[x].to_i32() - wh[x].to_i32() - bl[x].to_i32();
-                            row[x] = (row[x] << 1) | i32::from(s > 0);
-                            undecided[x] |= th.bit > 0 && s.abs() <= 2 * th.bit;
+                        // 2P − (W + K): the pattern against the mid level, at the scale of P − I.
+                        for (r, ((&a, &wv), &kv)) in row.iter_mut().zip(p.iter().zip(wh).zip(bl)) {
+                            *r = (*r << 1) | i32::from(2 * a.to_i32() > wv.to_i32() + kv.to_i32());
+                        }
+                        if th.bit > 0 {
+                            for (u, ((&a, &wv), &kv)) in
+                                undecided.iter_mut().zip(p.iter().zip(wh).zip(bl))
+                            {
+                                *u |= (2 * a.to_i32() - wv.to_i32() - kv.to_i32()).abs()
+                                    <= 2 * th.bit;
+                            }
                         }
                     }
                 }
             }
-            for x in 0..w {
-                let contrast = wh[x].to_i32() - bl[x].to_i32();
-                let code = gray_to_binary(row[x] as u32);
-                row[x] = if contrast > th.contrast && !undecided[x] && code < cells {
+            for (r, ((&wv, &kv), &u)) in row.iter_mut().zip(wh.iter().zip(bl).zip(undecided.iter()))
+            {
+                let code = gray_to_binary(*r as u32);
+                *r = if wv.to_i32() - kv.to_i32() > th.contrast && !u && code < cells {
                     code as i32
                 } else {
                     -1

@@ -32,7 +32,7 @@ pub(super) struct Signal<'a, T> {
 
 impl<T: Sample> Signal<'_, T> {
     /// White − black at pixel `i` (at least 1).
-    #[inline]
+    #[inline(always)]
     fn contrast(&self, i: usize) -> f32 {
         (self.white[i].to_i32() - self.black[i].to_i32()).max(1) as f32
     }
@@ -40,7 +40,7 @@ impl<T: Sample> Signal<'_, T> {
     /// Pattern minus inverse (or 2P − W − K) of bit `j` at pixel `i`, times `inv_contrast`
     /// (1 / the pixel's contrast) so that albedo differences between neighbouring pixels do not
     /// move the edge.
-    #[inline]
+    #[inline(always)]
     fn normalized(&self, j: usize, i: usize, inv_contrast: f32) -> f32 {
         let p = self.pat[j][i].to_i32();
         let s = match self.inv {
@@ -80,7 +80,7 @@ struct Code {
     window: usize,
     extrapolate: bool,
     cell_tolerance: f32,
-    albedo_power: i32,
+    albedo_power: u32,
 }
 
 /// Columns handled together when scanning down columns, so frame reads stay row-major.
@@ -120,28 +120,31 @@ pub(super) fn subpixel<T: Sample>(
                 .par_chunks_mut(w)
                 .zip(quality.par_chunks_mut(w))
                 .enumerate()
-                .for_each_init(Vec::new, |edges, (y, (out, q))| {
-                    let line = Line {
-                        start: y * w,
-                        stride: 1,
-                        len: w,
-                    };
-                    edges.clear();
-                    let mut chain = ChainState::default();
-                    for n in 0..w.saturating_sub(1) {
-                        gap_edges(
-                            y * w + n,
-                            y * w + n + 1,
-                            n,
-                            codes,
-                            signal,
-                            &code,
-                            &mut chain,
-                            edges,
-                        );
-                    }
-                    fit_runs(line, codes, &code, edges, out, q);
-                });
+                .for_each_init(
+                    || (Vec::new(), Vec::new()),
+                    |(edges, prefix), (y, (out, q))| {
+                        let line = Line {
+                            start: y * w,
+                            stride: 1,
+                            len: w,
+                        };
+                        edges.clear();
+                        let mut chain = ChainState::default();
+                        for n in 0..w.saturating_sub(1) {
+                            gap_edges(
+                                y * w + n,
+                                y * w + n + 1,
+                                n,
+                                codes,
+                                signal,
+                                &code,
+                                &mut chain,
+                                edges,
+                            );
+                        }
+                        fit_runs(line, codes, &code, edges, prefix, out, q);
+                    },
+                );
         }
         ScanDirection::AlongColumns => {
             // Phase 2 reads each column's codes contiguously from a transposed copy.
@@ -151,8 +154,14 @@ pub(super) fn subpixel<T: Sample>(
                 .zip(quality.par_chunks_mut(BLOCK * h))
                 .enumerate()
                 .for_each_init(
-                    || (vec![Vec::new(); BLOCK], vec![ChainState::default(); BLOCK]),
-                    |(edges, chains), (b, (out, q))| {
+                    || {
+                        (
+                            vec![Vec::new(); BLOCK],
+                            vec![ChainState::default(); BLOCK],
+                            Vec::new(),
+                        )
+                    },
+                    |(edges, chains, prefix), (b, (out, q))| {
                         let x0 = b * BLOCK;
                         let bw = out.len() / h;
                         for x in 0..bw {
@@ -187,6 +196,7 @@ pub(super) fn subpixel<T: Sample>(
                                 &codes_t,
                                 &code,
                                 &edges[x],
+                                prefix,
                                 &mut out[x * h..(x + 1) * h],
                                 &mut q[x * h..(x + 1) * h],
                             );
@@ -207,15 +217,73 @@ struct ChainState {
     started: bool,
 }
 
+/// Weighted moments of the edges, for line fits over any window in O(1).
+#[derive(Clone, Copy, Debug, Default)]
+struct Moments {
+    w: f64,
+    p: f64,
+    x: f64,
+    pp: f64,
+    px: f64,
+}
+
+impl Moments {
+    /// Weighted least-squares line x = α + β P through the edges whose moments these are
+    /// (P = step·boundary − 0.5; the noise is in x). `None` when degenerate.
+    #[inline]
+    fn line(&self, step: f32) -> Option<(f32, f32)> {
+        let den = self.w * self.pp - self.p * self.p;
+        if den.abs() < 1e-9 * self.w * self.w {
+            return None;
+        }
+        let b = (self.w * self.px - self.p * self.x) / den; // camera pixels per code cell
+        let a = (self.x - b * self.p) / self.w; // x at boundary 0
+        if b.abs() < 1e-6 {
+            return None;
+        }
+        // x = a + b B and P = step·B − 0.5  ⇒  x = α + β P.
+        let beta = b / f64::from(step);
+        Some(((a + 0.5 * beta) as f32, beta as f32))
+    }
+}
+
 /// Assign sub-pixel values to every run of equal code along the line from its edges.
 fn fit_runs(
     line: Line,
     codes: &[i32],
     code: &Code,
     edges: &[Edge],
+    prefix: &mut Vec<Moments>,
     out: &mut [f32],
     quality: &mut [f32],
 ) {
+    // Prefix sums of the edges' weighted moments (f64: absolute coordinates on long lines).
+    prefix.clear();
+    prefix.push(Moments::default());
+    let mut acc = Moments::default();
+    for ed in edges {
+        let (w, p, x) = (
+            f64::from(ed.weight),
+            f64::from(ed.boundary),
+            f64::from(ed.x),
+        );
+        acc.w += w;
+        acc.p += w * p;
+        acc.x += w * x;
+        acc.pp += w * p * p;
+        acc.px += w * p * x;
+        prefix.push(acc);
+    }
+    let window = |first: usize, last: usize| {
+        let (a, b) = (&prefix[first], &prefix[last + 1]);
+        Moments {
+            w: b.w - a.w,
+            p: b.p - a.p,
+            x: b.x - a.x,
+            pp: b.pp - a.pp,
+            px: b.px - a.px,
+        }
+    };
     let at = |n: usize| line.start + n * line.stride;
     let mut n = 0usize;
     let mut e_idx = 0usize;
@@ -273,7 +341,7 @@ fn fit_runs(
         if last <= first || (q < 1.0 && !code.extrapolate) {
             continue;
         }
-        let Some((alpha, beta)) = fit_line(&edges[first..=last], code.step) else {
+        let Some((alpha, beta)) = window(first, last).line(code.step) else {
             continue;
         };
         // A fitted value well outside the pixel's own code cell means the edges and the code
@@ -308,37 +376,6 @@ fn widen_up(edges: &[Edge], i: usize, k: usize) -> usize {
     j
 }
 
-/// Weighted least-squares line x = α + β P through the edges (camera position against projector
-/// coordinate P = step·boundary − 0.5; the noise is in x). `None` when degenerate.
-fn fit_line(edges: &[Edge], step: f32) -> Option<(f32, f32)> {
-    // Small relative coordinates keep f32 exact enough (boundaries and positions differ by a
-    // few units inside a window).
-    let (b0, x0) = (edges[0].boundary, edges[0].x);
-    let (mut sw, mut sp, mut sx, mut spp, mut spx) = (0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32);
-    for ed in edges {
-        let p = ed.boundary as f32 - b0 as f32;
-        let x = ed.x - x0;
-        sw += ed.weight;
-        sp += ed.weight * p;
-        sx += ed.weight * x;
-        spp += ed.weight * p * p;
-        spx += ed.weight * p * x;
-    }
-    let den = sw * spp - sp * sp;
-    if den.abs() < 1e-9 * sw * sw {
-        return None;
-    }
-    let b = (sw * spx - sp * sx) / den; // camera pixels per code cell
-    let a = (sx - b * sp) / sw + x0; // x at boundary b0
-    if b.abs() < 1e-6 {
-        return None;
-    }
-    // x = a + b (B − b0) and P = step·B − 0.5  ⇒  x = α + β P.
-    let beta = b / step;
-    let alpha = a - b * b0 as f32 + 0.5 * beta;
-    Some((alpha, beta))
-}
-
 /// Locate the sub-pixel boundaries in the gap between pixel `i0` (position `n` on its line)
 /// and the next pixel `i1`, and continue or break the line's chain.
 #[allow(clippy::too_many_arguments)]
@@ -370,7 +407,12 @@ fn gap_edges<T: Sample>(
     let increasing = c1 > c0;
     let (k0, k1) = (signal.contrast(i0), signal.contrast(i1));
     let (r0, r1) = (1.0 / k0, 1.0 / k1);
-    let weight = (k0.min(k1) * r0.min(r1)).powi(code.albedo_power).max(1e-4);
+    let ratio = k0.min(k1) * r0.min(r1);
+    let mut weight = 1.0f32;
+    for _ in 0..code.albedo_power {
+        weight *= ratio;
+    }
+    let weight = weight.max(1e-4);
     let first = edges.len();
     for b in lo + 1..=hi {
         let k = flipped_bit(b);

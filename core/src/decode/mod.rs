@@ -58,7 +58,7 @@ pub struct DecodeParams {
     pub cross_smoothing: bool,
     /// Power of the contrast ratio of an edge's two pixels used as its weight in the line fit
     /// (0 = all edges equal). Crossings beside albedo edges are biased; this discounts them.
-    pub albedo_weight_power: i32,
+    pub albedo_weight_power: u32,
 }
 
 impl Default for DecodeParams {
@@ -364,8 +364,11 @@ fn decode_planes<T: Sample>(
             );
             (coord, quality, bin)
         };
-    let (col, quality, binarization) = run_axis(CodeAxis::Column, &planes.col);
-    let row = planes.row.as_ref().map(|f| run_axis(CodeAxis::Row, f).0);
+    // The two axes are independent: run them side by side so neither leaves a core idle.
+    let ((col, quality, binarization), row) = rayon::join(
+        || run_axis(CodeAxis::Column, &planes.col),
+        || planes.row.as_ref().map(|f| run_axis(CodeAxis::Row, f).0),
+    );
     let mode_factor = if binarization == Binarization::Dual {
         1.0
     } else {
@@ -440,10 +443,11 @@ fn filter_across(
 ) -> Vec<f32> {
     let erosion = params.edge_erosion as usize;
     let halo = 2 + erosion;
-    let mut out = vec![f32::NAN; w * h];
+    let mut out = vec![0f32; w * h];
     out.par_chunks_mut(BAND * w).enumerate().for_each_init(
         || (Vec::<bool>::new(), Vec::<bool>::new()),
         |(keep, next), (band, dst)| {
+            dst.fill(f32::NAN);
             let y0 = band * BAND;
             let y1 = (y0 + dst.len() / w).min(h);
             // Rows lo..hi of validity after `reject`.

@@ -36,7 +36,7 @@ struct DecodeArgs {
     edge_erosion: u32,
     /// Power of the contrast ratio weighting edges beside albedo changes (0 = off).
     #[arg(long, default_value_t = DecodeParams::default().albedo_weight_power)]
-    albedo_weight_power: i32,
+    albedo_weight_power: u32,
 }
 
 impl DecodeArgs {

@@ -443,6 +443,15 @@ fn filter_across(
 ) -> Vec<f32> {
     let erosion = params.edge_erosion as usize;
     let halo = 2 + erosion;
+    let nan_row = vec![f32::NAN; w];
+    // Rows beyond the image read as invalid (NaN), which neither agree nor jump.
+    let row = |y: isize| -> &[f32] {
+        if y < 0 || y as usize >= h {
+            &nan_row
+        } else {
+            &coord[y as usize * w..(y as usize + 1) * w]
+        }
+    };
     let mut out = vec![0f32; w * h];
     out.par_chunks_mut(BAND * w).enumerate().for_each_init(
         || (Vec::<bool>::new(), Vec::<bool>::new()),
@@ -450,54 +459,42 @@ fn filter_across(
             dst.fill(f32::NAN);
             let y0 = band * BAND;
             let y1 = (y0 + dst.len() / w).min(h);
-            // Rows lo..hi of validity after `reject`.
+            // Rows lo..hi of validity after `reject` (branch-free, vectorisable).
             let lo = y0.saturating_sub(halo - 1);
             let hi = (y1 + halo - 1).min(h);
-            let rows = hi - lo;
             keep.clear();
-            keep.resize(rows * w, false);
+            keep.resize((hi - lo) * w, false);
             for y in lo..hi {
-                let cur = &coord[y * w..(y + 1) * w];
-                let above = (y > 0).then(|| &coord[(y - 1) * w..y * w]);
-                let below = (y + 1 < h).then(|| &coord[(y + 1) * w..(y + 2) * w]);
+                let (above, cur, below) =
+                    (row(y as isize - 1), row(y as isize), row(y as isize + 1));
                 let k = &mut keep[(y - lo) * w..(y - lo + 1) * w];
-                for x in 0..w {
-                    let v = cur[x];
-                    if !v.is_finite() {
-                        continue;
-                    }
-                    let (mut agree, mut jump) = (false, false);
-                    for n in [above.map(|r| r[x]), below.map(|r| r[x])]
-                        .into_iter()
-                        .flatten()
-                    {
-                        if n.is_finite() {
-                            if (n - v).abs() <= tolerance {
-                                agree = true;
-                            } else {
-                                jump = true;
-                            }
-                        }
-                    }
-                    k[x] = agree && !jump;
+                for (k, ((&v, &a), &b)) in k.iter_mut().zip(cur.iter().zip(above).zip(below)) {
+                    // NaN compares false: a missing neighbour is neither close nor a jump.
+                    let (close_a, close_b) =
+                        ((a - v).abs() <= tolerance, (b - v).abs() <= tolerance);
+                    let (jump_a, jump_b) = (a.is_finite() & !close_a, b.is_finite() & !close_b);
+                    *k = (close_a | close_b) & !jump_a & !jump_b;
                 }
             }
-            // Erosion shrinks the valid rows' range by one per step.
+            // Erosion shrinks the range of correct rows by one per step; neighbours outside
+            // the image (or outside the rows computed here, which this band does not write)
+            // do not erode.
             let (mut vlo, mut vhi) = (lo, hi);
             for _ in 0..erosion {
                 next.clear();
-                next.resize(rows * w, false);
+                next.extend_from_slice(keep);
                 for y in vlo..vhi {
-                    let r = y - lo;
-                    for x in 0..w {
-                        let i = r * w + x;
-                        let up = y == 0 || y == vlo || keep[i - w];
-                        let down = y + 1 == h || y + 1 == vhi || keep[i + w];
-                        // Band-internal borders (y == vlo, y + 1 == vhi) are outside the rows
-                        // this band writes, so their neighbours do not matter.
-                        next[i] = keep[i]
-                            && (y == 0 || y == vlo || up)
-                            && (y + 1 == h || y + 1 == vhi || down);
+                    let r = (y - lo) * w;
+                    let cur = &mut next[r..r + w];
+                    if y > vlo {
+                        for (c, &u) in cur.iter_mut().zip(&keep[r - w..r]) {
+                            *c &= u;
+                        }
+                    }
+                    if y + 1 < vhi {
+                        for (c, &d) in cur.iter_mut().zip(&keep[r + w..r + 2 * w]) {
+                            *c &= d;
+                        }
                     }
                 }
                 std::mem::swap(keep, next);
@@ -508,24 +505,25 @@ fn filter_across(
                     vhi -= 1;
                 }
             }
-            let valid = |y: usize, x: usize| keep[(y - lo) * w + x];
+            let kept = |y: usize| &keep[(y - lo) * w..(y - lo + 1) * w];
             for y in y0..y1 {
                 let d = &mut dst[(y - y0) * w..(y - y0 + 1) * w];
-                for x in 0..w {
-                    if !valid(y, x) {
-                        continue;
+                let cur = row(y as isize);
+                for ((d, &v), &k) in d.iter_mut().zip(cur).zip(kept(y)) {
+                    if k {
+                        *d = v;
                     }
-                    let v = coord[y * w + x];
-                    d[x] = v;
-                    if params.cross_smoothing
-                        && y > 0
-                        && y + 1 < h
-                        && valid(y - 1, x)
-                        && valid(y + 1, x)
+                }
+                if params.cross_smoothing && y > 0 && y + 1 < h {
+                    let (above, below) = (row(y as isize - 1), row(y as isize + 1));
+                    let (ka, kb) = (kept(y - 1), kept(y + 1));
+                    let neighbours = above.iter().zip(below).zip(ka.iter().zip(kb));
+                    for (((d, &v), &k), ((&a, &b), (&oa, &ob))) in
+                        d.iter_mut().zip(cur).zip(kept(y)).zip(neighbours)
                     {
-                        let (a, b) = (coord[(y - 1) * w + x], coord[(y + 1) * w + x]);
-                        if (a - v).abs() <= tolerance && (b - v).abs() <= tolerance {
-                            d[x] = 0.25 * (a + b) + 0.5 * v;
+                        if k & oa & ob & ((a - v).abs() <= tolerance) & ((b - v).abs() <= tolerance)
+                        {
+                            *d = 0.25 * (a + b) + 0.5 * v;
                         }
                     }
                 }

@@ -171,6 +171,38 @@ mod tests {
     }
 
     #[test]
+    fn tiff_and_jpeg_and_colour_input_become_luma() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let (w, h) = (16u32, 8u32);
+        let gray: Vec<u8> = (0..w * h).map(|i| (i * 2) as u8).collect();
+        let img = image::GrayImage::from_raw(w, h, gray.clone()).expect("buffer");
+        let tiff = dir.path().join("a.tiff");
+        img.save(&tiff).expect("tiff");
+        assert_eq!(
+            GrayImage::load(&tiff).expect("load tiff"),
+            GrayImage::from_u8(w, h, gray.clone())
+        );
+        let wide = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(w, h, |x, y| {
+            image::Luma([(x * 1000 + y) as u16])
+        });
+        let tiff16 = dir.path().join("b.tif");
+        wide.save(&tiff16).expect("tiff16");
+        let back = GrayImage::load(&tiff16).expect("load 16-bit tiff");
+        assert_eq!(back.bit_depth(), 16);
+        assert_eq!(back.get(3, 2), 3002.0);
+        // JPEG is lossy: smooth content comes back within a few grey levels.
+        let jpg = dir.path().join("c.jpg");
+        img.save(&jpg).expect("jpeg");
+        let back = GrayImage::load(&jpg).expect("load jpeg");
+        assert!((0..w).all(|x| (back.get(x, 4) - gray[(4 * w + x) as usize] as f32).abs() <= 6.0));
+        // Colour PNG → luma.
+        let rgb = image::RgbImage::from_pixel(4, 4, image::Rgb([100, 100, 100]));
+        let p = dir.path().join("rgb.png");
+        rgb.save(&p).expect("rgb");
+        assert_eq!(GrayImage::load(&p).expect("load rgb").get(1, 1), 100.0);
+    }
+
+    #[test]
     fn unreadable_file_names_the_path() {
         let dir = tempfile::tempdir().expect("tempdir");
         let p = dir.path().join("broken.png");

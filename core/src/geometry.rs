@@ -1,7 +1,7 @@
 //! The small math vocabulary of RIS: vectors, the pinhole camera with Brown distortion, and
 //! line–line geometry. Millimetres; `X_c = R X_w + t` (SPEC §2).
 
-pub use nalgebra::{Matrix3, Matrix4, Vector2, Vector3};
+pub use nalgebra::{Matrix3, Matrix4, Point3, Vector2, Vector3};
 
 /// 3-vector of f64.
 pub type Vec3 = Vector3<f64>;

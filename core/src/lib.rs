@@ -16,7 +16,9 @@ pub mod image;
 pub mod io;
 pub mod mesh;
 pub mod pattern;
+pub mod register;
 pub mod sensor;
 pub mod sim;
+pub mod spatial;
 
 pub use error::{Error, Result};

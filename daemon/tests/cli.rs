@@ -294,3 +294,92 @@ fn append(path: &Path, text: &str) {
     s.push_str(text);
     std::fs::write(path, s).expect("write");
 }
+
+#[test]
+fn register_recovers_a_known_motion_and_refuses_bad_transforms() {
+    use ris_core::cloud::PointCloud;
+    use ris_core::register::{Pose, TransformFile};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let surface = |x: f32, y: f32| 20.0 * (x / 40.0).sin() * (y / 30.0).cos() + 0.002 * x * x;
+    let mut fixed = PointCloud::default();
+    let mut moving = PointCloud::default();
+    let truth = Pose::new(
+        ris_core::geometry::Vector3::new(2.0, -1.0, 0.5),
+        ris_core::geometry::Vector3::new(0.01, 0.02, -0.03),
+    );
+    for i in 0..200 {
+        for j in 0..150 {
+            let (x, y) = (i as f32 * 0.7 - 70.0, j as f32 * 0.7 - 52.0);
+            if x < 40.0 {
+                fixed.points.push([x, y, surface(x, y)]);
+                fixed.confidence.push(1.0);
+            }
+            if x > -40.0 {
+                let (xm, ym) = (x + 0.35, y + 0.35);
+                let p = truth.inverse()
+                    * ris_core::geometry::Point3::new(
+                        f64::from(xm),
+                        f64::from(ym),
+                        f64::from(surface(xm, ym)),
+                    );
+                moving.points.push([p.x as f32, p.y as f32, p.z as f32]);
+                moving.confidence.push(1.0);
+            }
+        }
+    }
+    let (fp, mp, out) = (
+        dir.path().join("fixed.ply"),
+        dir.path().join("moving.ply"),
+        dir.path().join("t.toml"),
+    );
+    fixed.write_ply(&fp).expect("ply");
+    moving.write_ply(&mp).expect("ply");
+    let o = ris(&[
+        "register",
+        "--fixed",
+        s(&fp),
+        "--moving",
+        s(&mp),
+        "--out",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let got = TransformFile::load(&out).expect("transform");
+    let d = got.inverse() * truth;
+    assert!(
+        d.rotation.angle().to_degrees() < 0.01 && d.translation.vector.norm() < 0.02,
+        "error {d:?}"
+    );
+    // A non-rigid initial transform is refused with the file and field named.
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(&bad, "matrix = [[2.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]\n").expect("write");
+    let out2 = dir.path().join("never.toml");
+    fails(
+        &[
+            "register",
+            "--fixed",
+            s(&fp),
+            "--moving",
+            s(&mp),
+            "--init",
+            s(&bad),
+            "--out",
+            s(&out2),
+        ],
+        &["bad.toml", "matrix", "rotation"],
+        &out2,
+    );
+    fails(
+        &[
+            "register",
+            "--fixed",
+            s(&dir.path().join("nope.ply")),
+            "--moving",
+            s(&mp),
+            "--out",
+            s(&out2),
+        ],
+        &["nope.ply"],
+        &out2,
+    );
+}

@@ -117,6 +117,30 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Rigidly register one point cloud onto another (ICP) and write the transform (TOML).
+    Register {
+        /// The reference cloud (PLY).
+        #[arg(long)]
+        fixed: PathBuf,
+        /// The cloud to move (PLY).
+        #[arg(long)]
+        moving: PathBuf,
+        /// Initial fixed_from_moving transform (TOML with a 4x4 `matrix`).
+        #[arg(long)]
+        init: Option<PathBuf>,
+        /// point-to-plane or point-to-point.
+        #[arg(long, default_value = "point-to-plane")]
+        metric: String,
+        /// Fraction of the closest pairs kept each iteration.
+        #[arg(long, default_value_t = 0.9)]
+        trim: f64,
+        /// Pairs farther apart than this (mm) are never used.
+        #[arg(long)]
+        max_distance: Option<f64>,
+        /// Output transform file.
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// End-to-end demo: simulate the built-in scene, reconstruct it, write the cloud and accuracy.
     Demo {
         /// Output directory.
@@ -184,6 +208,27 @@ fn main() -> Result<()> {
         }
         Command::Simulate { scene, out } => {
             commands::simulate::run(&scene, &out)?;
+        }
+        Command::Register {
+            fixed,
+            moving,
+            init,
+            metric,
+            trim,
+            max_distance,
+            out,
+        } => {
+            anyhow::ensure!(
+                trim > 0.0 && trim <= 1.0,
+                "--trim must be in (0, 1], got {trim}"
+            );
+            let params = ris_core::register::IcpParams {
+                metric: commands::register::metric(&metric)?,
+                trim,
+                max_distance: max_distance.unwrap_or(f64::INFINITY),
+                ..Default::default()
+            };
+            commands::register::run(&fixed, &moving, init.as_deref(), &params, &out)?;
         }
         Command::Demo { out, scene } => {
             commands::demo::run(scene.as_deref(), &out)?;

@@ -4,6 +4,7 @@ pub mod decode;
 pub mod demo;
 pub mod patterns;
 pub mod reconstruct;
+pub mod register;
 pub mod simulate;
 
 use anyhow::{bail, Context, Result};

@@ -16,13 +16,13 @@ pub struct RayHit {
 }
 
 #[derive(Clone, Copy, Debug)]
-struct Node {
+pub(super) struct Node {
     min: [f64; 3],
     max: [f64; 3],
     /// Leaf: first triangle in `order`; inner: index of the left child (right = left + 1).
-    start: u32,
+    pub(super) start: u32,
     /// Leaf: triangle count; inner: 0.
-    count: u32,
+    pub(super) count: u32,
 }
 
 /// A BVH over the triangles of a mesh (median split on the longest axis).
@@ -105,6 +105,25 @@ impl Bvh {
     /// The mesh this hierarchy was built over.
     pub fn mesh(&self) -> &TriangleMesh {
         &self.mesh
+    }
+
+    /// Node `i`.
+    pub(super) fn node(&self, i: usize) -> &Node {
+        &self.nodes[i]
+    }
+
+    /// Triangles of a leaf node.
+    pub(super) fn leaf(&self, node: &Node) -> &[u32] {
+        &self.order[node.start as usize..(node.start + node.count) as usize]
+    }
+
+    /// Squared distance from `p` to the box of node `i` (0 inside).
+    pub(super) fn box_distance2(&self, i: usize, p: &Vec3) -> f64 {
+        let n = &self.nodes[i];
+        (0..3)
+            .map(|k| (n.min[k] - p[k]).max(0.0).max(p[k] - n.max[k]))
+            .map(|d| d * d)
+            .sum()
     }
 
     /// Axis-aligned bounds of the whole mesh.

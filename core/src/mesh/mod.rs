@@ -1,9 +1,12 @@
-//! Triangle meshes: STL input (binary and ASCII) and a bounding-volume hierarchy for ray casts.
+//! Triangle meshes: STL input (binary and ASCII), a bounding-volume hierarchy for ray casts and
+//! signed point-to-mesh distances.
 
 mod bvh;
+mod distance;
 pub mod stl;
 
 pub use bvh::{Bvh, RayHit};
+pub use distance::{Closest, SignedDistance};
 
 use crate::geometry::{Mat3, Vec3};
 

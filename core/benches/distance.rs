@@ -1,0 +1,61 @@
+//! Signed distances of 200 k points to a 483 k-triangle mesh (BVH + pseudo-normal sign).
+#![allow(missing_docs)] // criterion_group! generates an undocumented public function
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use ris_core::geometry::Vec3;
+use ris_core::mesh::{SignedDistance, TriangleMesh};
+
+/// A curved panel of (n+1)² vertices and 2n² triangles over 1000 × 800 mm.
+fn panel(n: usize) -> TriangleMesh {
+    let z = |x: f64, y: f64| 60.0 * (x / 400.0).sin() * (y / 300.0).cos();
+    let mut m = TriangleMesh::default();
+    for j in 0..=n {
+        for i in 0..=n {
+            let (x, y) = (
+                -500.0 + 1000.0 * i as f64 / n as f64,
+                -400.0 + 800.0 * j as f64 / n as f64,
+            );
+            m.vertices.push(Vec3::new(x, y, z(x, y)));
+        }
+    }
+    let id = |i: usize, j: usize| (j * (n + 1) + i) as u32;
+    for j in 0..n {
+        for i in 0..n {
+            m.triangles.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+            m.triangles.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+        }
+    }
+    m
+}
+
+fn bench(c: &mut Criterion) {
+    let mesh = panel(491);
+    assert_eq!(mesh.triangles.len(), 482_162);
+    let mut s = 9u64;
+    let mut u = move || {
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let points: Vec<[f64; 3]> = (0..200_000)
+        .map(|_| {
+            let (x, y) = (-480.0 + 960.0 * u(), -380.0 + 760.0 * u());
+            [
+                x,
+                y,
+                60.0 * (x / 400.0).sin() * (y / 300.0).cos() + 4.0 * (u() - 0.5),
+            ]
+        })
+        .collect();
+    let sd = SignedDistance::new(mesh);
+    let mut g = c.benchmark_group("signed_distance");
+    g.sample_size(10);
+    g.bench_function("200k_points_483k_triangles", |b| {
+        b.iter(|| sd.query_all(&points))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -383,3 +383,50 @@ fn register_recovers_a_known_motion_and_refuses_bad_transforms() {
         &out2,
     );
 }
+
+#[test]
+fn merge_needs_to_common_and_deduplicates() {
+    use ris_core::cloud::PointCloud;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let sim = simulated(dir.path());
+    let sensor = sim.join("sensor.toml");
+    let cloud = dir.path().join("c.ply");
+    let o = ris(&[
+        "reconstruct",
+        "--sensor",
+        s(&sensor),
+        s(&sim.join("capture")),
+        "--out",
+        s(&cloud),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = dir.path().join("merged.ply");
+    let arg = format!("{}:{}", s(&sensor), s(&cloud));
+    fails(
+        &["merge", &arg, "--out", s(&out)],
+        &["sensor.toml", "to_common"],
+        &out,
+    );
+    // Two "sensors": the same cloud through the identity and through a 5 m shift (disjoint).
+    let text = std::fs::read_to_string(&sensor).expect("read");
+    let a = dir.path().join("a.toml");
+    let b = dir.path().join("b.toml");
+    let reference = format!("capture = {:?}", s(&sim.join("reference")));
+    let base = text.replace("capture = \"reference\"", &reference);
+    std::fs::write(&a, format!("{base}\n[to_common]\nmatrix = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]\n")).expect("a");
+    std::fs::write(&b, format!("{base}\n[to_common]\nmatrix = [[1.0, 0.0, 0.0, 5000.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]\n")).expect("b");
+    let (arg_a, arg_b) = (
+        format!("{}:{}", s(&a), s(&cloud)),
+        format!("{}:{}", s(&b), s(&cloud)),
+    );
+    let o = ris(&["merge", &arg_a, &arg_a, &arg_b, "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let single = PointCloud::read_ply(&cloud).expect("ply");
+    let merged = PointCloud::read_ply(&out).expect("ply");
+    // The repeated sensor is a pure duplicate; the shifted one is disjoint.
+    assert_eq!(merged.len(), 2 * single.len());
+    assert_eq!(
+        merged.points.iter().filter(|p| p[0] > 2500.0).count(),
+        single.len()
+    );
+}

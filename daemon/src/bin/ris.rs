@@ -117,6 +117,18 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Merge sensor clouds into the cell frame (each sensor's [to_common]), de-duplicating overlaps.
+    Merge {
+        /// Inputs as SENSOR.toml:CLOUD.ply.
+        #[arg(required = true)]
+        inputs: Vec<String>,
+        /// Points of different sensors closer than this (mm) are duplicates; the more confident stays.
+        #[arg(long, default_value_t = 0.5)]
+        radius: f64,
+        /// Output PLY.
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Rigidly register one point cloud onto another (ICP) and write the transform (TOML).
     Register {
         /// The reference cloud (PLY).
@@ -208,6 +220,13 @@ fn main() -> Result<()> {
         }
         Command::Simulate { scene, out } => {
             commands::simulate::run(&scene, &out)?;
+        }
+        Command::Merge {
+            inputs,
+            radius,
+            out,
+        } => {
+            commands::merge::run(&inputs, radius, &out)?;
         }
         Command::Register {
             fixed,

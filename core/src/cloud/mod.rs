@@ -1,6 +1,10 @@
 //! Point clouds and PLY files (SPEC §2): written as binary little-endian `x y z confidence`
 //! float32; read from ASCII or binary PLY with float or double coordinates.
 
+mod merge;
+
+pub use merge::{merge, MergeStats};
+
 use std::path::Path;
 
 use crate::io::write_atomic;

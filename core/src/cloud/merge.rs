@@ -1,0 +1,127 @@
+//! Merging sensor clouds into the cell frame, de-duplicating where sensors overlap.
+
+use rayon::prelude::*;
+
+use super::PointCloud;
+use crate::geometry::Matrix4;
+use crate::spatial::KdTree;
+
+/// How many points each input contributed and how many overlap duplicates were dropped.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct MergeStats {
+    /// Points kept per input cloud.
+    pub kept: Vec<usize>,
+    /// Points dropped per input cloud as duplicates of a more confident point.
+    pub dropped: Vec<usize>,
+}
+
+/// Transform each cloud by its sensor → cell matrix and merge them. A point closer than
+/// `radius` (mm) to a point of another sensor is a duplicate: of the two, the more confident
+/// one stays. Points of one sensor never de-duplicate each other (one per camera pixel).
+pub fn merge(clouds: &[(PointCloud, Matrix4<f64>)], radius: f64) -> (PointCloud, MergeStats) {
+    let mut merged = PointCloud::default();
+    let mut owner: Vec<usize> = Vec::new();
+    let mut stats = MergeStats {
+        kept: vec![0; clouds.len()],
+        dropped: vec![0; clouds.len()],
+    };
+    let r2 = radius * radius;
+    for (s, (cloud, m)) in clouds.iter().enumerate() {
+        let pts: Vec<[f64; 3]> = cloud
+            .points
+            .par_iter()
+            .map(|p| {
+                let v = m * nalgebra::Vector4::new(
+                    f64::from(p[0]),
+                    f64::from(p[1]),
+                    f64::from(p[2]),
+                    1.0,
+                );
+                [v.x, v.y, v.z]
+            })
+            .collect();
+        // Existing points from earlier sensors near each new point.
+        let existing: Vec<[f64; 3]> = merged
+            .points
+            .iter()
+            .map(|p| [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])])
+            .collect();
+        let tree = KdTree::new(&existing);
+        let near: Vec<Option<usize>> = pts
+            .par_iter()
+            .map(|p| tree.nearest(p).filter(|&(_, d2)| d2 < r2).map(|(j, _)| j))
+            .collect();
+        let mut replaced = vec![false; merged.len()];
+        for (i, p) in pts.iter().enumerate() {
+            let conf = cloud.confidence.get(i).copied().unwrap_or(1.0);
+            let point = [p[0] as f32, p[1] as f32, p[2] as f32];
+            match near[i] {
+                Some(j) if !replaced[j] => {
+                    if conf > merged.confidence[j] {
+                        stats.dropped[owner[j]] += 1;
+                        stats.kept[owner[j]] -= 1;
+                        merged.points[j] = point;
+                        merged.confidence[j] = conf;
+                        owner[j] = s;
+                        replaced[j] = true;
+                        stats.kept[s] += 1;
+                    } else {
+                        stats.dropped[s] += 1;
+                    }
+                }
+                Some(_) => stats.dropped[s] += 1,
+                None => {
+                    merged.points.push(point);
+                    merged.confidence.push(conf);
+                    owner.push(s);
+                    stats.kept[s] += 1;
+                }
+            }
+        }
+    }
+    (merged, stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn overlap_is_deduplicated_by_confidence_in_the_cell_frame() {
+        // Two sensors see x ∈ [0, 60) and [40, 100) of a plane z = 5 (cell frame), 1 mm grid.
+        let grid = |x0: i32, x1: i32, conf: f32| {
+            let mut c = PointCloud::default();
+            for x in x0..x1 {
+                for y in 0..20 {
+                    c.points.push([x as f32, y as f32, 5.0]);
+                    c.confidence.push(conf);
+                }
+            }
+            c
+        };
+        // Sensor 2's frame is shifted by −10 mm in x relative to the cell.
+        let mut shift = Matrix4::identity();
+        shift[(0, 3)] = 10.0;
+        let a = grid(0, 60, 0.5);
+        let b = grid(30, 90, 0.8); // cell x = 40..100
+        let (m, stats) = merge(&[(a, Matrix4::identity()), (b, shift)], 0.3);
+        assert_eq!(m.len(), 100 * 20, "every cell position once");
+        assert_eq!(
+            stats.dropped,
+            vec![20 * 20, 0],
+            "sensor 2 is more confident in the overlap"
+        );
+        assert!(m
+            .points
+            .iter()
+            .all(|p| p[2] == 5.0 && p[0] >= 0.0 && p[0] < 100.0));
+        let overlap_conf: Vec<f32> = m
+            .points
+            .iter()
+            .zip(&m.confidence)
+            .filter(|(p, _)| p[0] >= 40.0 && p[0] < 60.0)
+            .map(|(_, c)| *c)
+            .collect();
+        assert!(overlap_conf.iter().all(|c| *c == 0.8));
+    }
+}

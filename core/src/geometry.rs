@@ -162,6 +162,11 @@ pub fn closest_on_first(o1: &Vec3, d1: &Vec3, o2: &Vec3, d2: &Vec3) -> Option<(f
     Some((alpha, gap))
 }
 
+/// The rotation of a row-major 4×4 rigid transform as a unit quaternion.
+pub fn nalgebra_rotation(m: &[[f64; 4]; 4]) -> nalgebra::UnitQuaternion<f64> {
+    nalgebra::UnitQuaternion::from_matrix(&Mat3::from_fn(|i, j| m[i][j]))
+}
+
 /// Rotation matrix from XYZ Euler angles in degrees (applied x, then y, then z).
 pub fn rotation_xyz_deg(angles: [f64; 3]) -> Mat3 {
     let [a, b, c] = angles.map(f64::to_radians);

@@ -13,6 +13,7 @@ pub mod decode;
 pub mod error;
 pub mod geometry;
 pub mod image;
+pub mod inspect;
 pub mod io;
 pub mod mesh;
 pub mod pattern;

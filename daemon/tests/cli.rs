@@ -430,3 +430,147 @@ fn merge_needs_to_common_and_deduplicates() {
         single.len()
     );
 }
+
+#[test]
+fn inspect_writes_deviation_map_report_and_exit_status() {
+    use ris_core::cloud::PointCloud;
+    use ris_core::geometry::Vec3;
+    use ris_core::mesh::{stl, TriangleMesh};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let surface = |x: f64, y: f64| 20.0 * (x / 90.0).sin() * (y / 70.0).cos();
+    let (nx, ny) = (120, 80);
+    let mut mesh = TriangleMesh::default();
+    for j in 0..=ny {
+        for i in 0..=nx {
+            let (x, y) = (
+                -120.0 + 240.0 * i as f64 / nx as f64,
+                -80.0 + 160.0 * j as f64 / ny as f64,
+            );
+            mesh.vertices.push(Vec3::new(x, y, surface(x, y)));
+        }
+    }
+    let id = |i: usize, j: usize| (j * (nx + 1) + i) as u32;
+    for j in 0..ny {
+        for i in 0..nx {
+            mesh.triangles
+                .push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+            mesh.triangles
+                .push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+        }
+    }
+    let cad = dir.path().join("part.stl");
+    stl::write_binary(&cad, &mesh).expect("stl");
+    // Measured: a 0.8 mm dent near (50, 20), shifted 1 mm in z overall (the pose is unknown).
+    let mut cloud = PointCloud::default();
+    for j in 0..300 {
+        for i in 0..450 {
+            let (x, y) = (
+                -118.0 + 236.0 * i as f64 / 449.0,
+                -78.0 + 156.0 * j as f64 / 299.0,
+            );
+            let dent = -0.8 * (-((x - 50.0).powi(2) + (y - 20.0).powi(2)) / 72.0).exp();
+            cloud
+                .points
+                .push([x as f32, y as f32, (surface(x, y) + dent + 1.0) as f32]);
+            cloud.confidence.push(1.0);
+        }
+    }
+    let cp = dir.path().join("scan.ply");
+    cloud.write_ply(&cp).expect("ply");
+    let datums = dir.path().join("datums.toml");
+    let mut text = String::new();
+    for (n, (x, y)) in [
+        (-100.0, -60.0),
+        (100.0, -60.0),
+        (100.0, 60.0),
+        (-100.0, 60.0),
+    ]
+    .iter()
+    .enumerate()
+    {
+        text.push_str(&format!(
+            "[[datum]]\nname = \"D{}\"\nposition = [{x}, {y}, {}]\nradius = 15.0\n",
+            n + 1,
+            surface(*x, *y)
+        ));
+    }
+    std::fs::write(&datums, text).expect("datums");
+    let out = dir.path().join("report");
+    let o = ris(&[
+        "inspect",
+        "--cloud",
+        s(&cp),
+        "--cad",
+        s(&cad),
+        "--datums",
+        s(&datums),
+        "--tolerance",
+        "0.5",
+        "--out",
+        s(&out),
+    ]);
+    assert_eq!(
+        o.status.code(),
+        Some(3),
+        "a failing part exits with 3: {}",
+        stderr(&o)
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).expect("report"))
+            .expect("json");
+    assert_eq!(report["verdict"], "fail");
+    let region = &report["regions_out_of_tolerance"][0];
+    assert!(
+        (region["centroid"][0].as_f64().expect("x") - 50.0).abs() < 3.0
+            && (region["peak_deviation_mm"].as_f64().expect("peak") + 0.8).abs() < 0.05,
+        "{region}"
+    );
+    assert_eq!(report["datums"].as_array().expect("datums").len(), 4);
+    let dev = PointCloud::read_ply(&out.join("deviation.ply")).expect("deviation.ply");
+    assert_eq!(dev.len(), cloud.len());
+    let png = ris_core::image::GrayImage::load(&out.join("deviation.png")).expect("png");
+    assert!(png.width > 400 && png.height > 300);
+    if let Ok(keep) = std::env::var("RIS_KEEP_PNG") {
+        std::fs::copy(out.join("deviation.png"), keep).expect("keep");
+    }
+    // The same part within a 1 mm tolerance passes.
+    let out2 = dir.path().join("report2");
+    let o = ris(&[
+        "inspect",
+        "--cloud",
+        s(&cp),
+        "--cad",
+        s(&cad),
+        "--datums",
+        s(&datums),
+        "--tolerance",
+        "1.0",
+        "--out",
+        s(&out2),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    // A datums file with a negative radius is refused by field.
+    std::fs::write(
+        &datums,
+        "[[datum]]\nname = \"D1\"\nposition = [0.0, 0.0, 0.0]\nradius = -1.0\n",
+    )
+    .expect("write");
+    let out3 = dir.path().join("never");
+    fails(
+        &[
+            "inspect",
+            "--cloud",
+            s(&cp),
+            "--cad",
+            s(&cad),
+            "--datums",
+            s(&datums),
+            "--tolerance",
+            "0.5",
+            "--out",
+            s(&out3),
+        ],
+        &["datums.toml", "datum[0].radius"],
+        &out3,
+    );
+}

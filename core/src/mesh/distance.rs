@@ -35,6 +35,8 @@ pub struct Closest {
     pub point: Vec3,
     /// Triangle index.
     pub triangle: u32,
+    /// Unit outward normal of that triangle.
+    pub normal: Vec3,
 }
 
 impl SignedDistance {
@@ -97,6 +99,7 @@ impl SignedDistance {
             distance: sign * d2.sqrt(),
             point,
             triangle: tri,
+            normal: self.face_normals[tri as usize],
         })
     }
 

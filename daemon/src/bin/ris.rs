@@ -117,6 +117,25 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Inspect a cloud against its CAD model: deviation map, report and pass/fail verdict
+    /// (exit status 3 when the part fails).
+    Inspect {
+        /// Measured cloud (PLY).
+        #[arg(long)]
+        cloud: PathBuf,
+        /// CAD model (STL, binary or ASCII).
+        #[arg(long)]
+        cad: PathBuf,
+        /// Datum regions ([[datum]] name, position, radius); without them trusted regions are grown.
+        #[arg(long)]
+        datums: Option<PathBuf>,
+        /// Tolerance on |deviation|, mm.
+        #[arg(long)]
+        tolerance: f64,
+        /// Output directory (deviation.ply, deviation.png, report.json).
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Merge sensor clouds into the cell frame (each sensor's [to_common]), de-duplicating overlaps.
     Merge {
         /// Inputs as SENSOR.toml:CLOUD.ply.
@@ -220,6 +239,19 @@ fn main() -> Result<()> {
         }
         Command::Simulate { scene, out } => {
             commands::simulate::run(&scene, &out)?;
+        }
+        Command::Inspect {
+            cloud,
+            cad,
+            datums,
+            tolerance,
+            out,
+        } => {
+            let report = commands::inspect::run(&cloud, &cad, datums.as_deref(), tolerance, &out)?;
+            if report.verdict != "pass" {
+                // Distinct exit status for a failed part, so scripts can branch on the verdict.
+                std::process::exit(3);
+            }
         }
         Command::Merge {
             inputs,

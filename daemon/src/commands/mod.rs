@@ -2,6 +2,7 @@
 
 pub mod decode;
 pub mod demo;
+pub mod inspect;
 pub mod merge;
 pub mod patterns;
 pub mod reconstruct;

@@ -1,0 +1,465 @@
+//! Inspection against CAD (Ch. 5.3, SPEC §9): object-oriented registration that does not absorb
+//! the part's deformation, signed deviations, statistics, datum residuals, out-of-tolerance
+//! regions and a pass/fail verdict.
+//!
+//! Registration fits the cloud to the CAD surface (point-to-plane against the true closest
+//! points of the mesh) using only *trusted* points: the datum regions when the part has datums,
+//! otherwise a set grown by iterative trimming (fit, drop points whose deviation departs from
+//! the median by more than a robust threshold, refit, until the set no longer changes).
+
+mod output;
+mod regions;
+mod report;
+
+pub use output::{deviation_colour, write_deviation_ply, write_deviation_png};
+pub use regions::{out_of_tolerance_regions, Region};
+pub use report::{DatumResidual, Report, Statistics};
+
+use std::path::Path;
+
+use nalgebra::{Matrix6, Point3, UnitQuaternion, Vector3, Vector6};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::io::read_toml;
+use crate::mesh::SignedDistance;
+use crate::register::Pose;
+use crate::{Error, Result};
+
+/// A datum region: CAD points within `radius` of `position` (CAD frame, mm).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Datum {
+    /// Name used in the report.
+    pub name: String,
+    /// Centre, CAD frame.
+    pub position: [f64; 3],
+    /// Radius, mm.
+    pub radius: f64,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DatumsFile {
+    datum: Vec<Datum>,
+}
+
+/// Read a datums file (`[[datum]]` with `name`, `position`, `radius`).
+pub fn load_datums(path: &Path) -> Result<Vec<Datum>> {
+    let f: DatumsFile = read_toml(path)?;
+    let ctx = path.display().to_string();
+    for (i, d) in f.datum.iter().enumerate() {
+        if !(d.radius.is_finite() && d.radius > 0.0) {
+            return Err(Error::invalid(
+                &ctx,
+                format!("datum[{i}].radius"),
+                format!("{} must be positive", d.radius),
+            ));
+        }
+        if d.position.iter().any(|v| !v.is_finite()) {
+            return Err(Error::invalid(
+                &ctx,
+                format!("datum[{i}].position"),
+                "must be finite",
+            ));
+        }
+    }
+    Ok(f.datum)
+}
+
+/// Inspection settings.
+#[derive(Clone, Debug)]
+pub struct InspectParams {
+    /// Tolerance on |deviation|, mm.
+    pub tolerance: f64,
+    /// Datum regions (empty: trusted regions by iterative trimming).
+    pub datums: Vec<Datum>,
+    /// Initial cad_from_cloud; `None` = coarse alignment by principal axes.
+    pub init: Option<Pose>,
+    /// Iteration limit of each fit.
+    pub max_iterations: usize,
+    /// Points used for fitting (a uniform subsample of the cloud; deviations use every point).
+    pub fit_points: usize,
+}
+
+impl Default for InspectParams {
+    fn default() -> Self {
+        InspectParams {
+            tolerance: 0.5,
+            datums: Vec::new(),
+            init: None,
+            max_iterations: 60,
+            fit_points: 50_000,
+        }
+    }
+}
+
+/// The result: the cloud in the CAD frame with its deviations, and the report.
+pub struct Inspection {
+    /// Points in the CAD frame.
+    pub points: Vec<[f64; 3]>,
+    /// Signed deviation per point (SPEC §2 sign), mm.
+    pub deviations: Vec<f64>,
+    /// Whether each point was used (trusted) by the final fit.
+    pub trusted: Vec<bool>,
+    /// The report (verdict, transform, statistics, datums, regions).
+    pub report: Report,
+}
+
+/// Register `cloud` to the CAD surface and measure its deviations.
+pub fn inspect(
+    cloud: &[[f64; 3]],
+    cad: &SignedDistance,
+    params: &InspectParams,
+) -> Result<Inspection> {
+    if cloud.len() < 10 {
+        return Err(Error::Insufficient(format!(
+            "the cloud has {} points; inspection needs at least 10",
+            cloud.len()
+        )));
+    }
+    if !(params.tolerance.is_finite() && params.tolerance > 0.0) {
+        return Err(Error::invalid(
+            "inspection",
+            "tolerance",
+            format!("{} must be positive", params.tolerance),
+        ));
+    }
+    let step = (cloud.len() / params.fit_points.max(1)).max(1);
+    let fit: Vec<[f64; 3]> = cloud.iter().step_by(step).copied().collect();
+    let start = match params.init {
+        Some(p) => p,
+        None => coarse_alignment(&fit, cad),
+    };
+    let (pose, mode, trusted_fit, iterations) = if params.datums.is_empty() {
+        trusted_region_fit(&fit, cad, start, params)
+    } else {
+        datum_fit(&fit, cad, start, params)
+    };
+    let points: Vec<[f64; 3]> = cloud
+        .par_iter()
+        .map(|p| (pose * Point3::from(*p)).coords.into())
+        .collect();
+    let deviations = cad.query_all(&points);
+    let trusted: Vec<bool> = match mode {
+        "datums" => points
+            .iter()
+            .map(|p| in_datums(p, &params.datums))
+            .collect(),
+        _ => {
+            let thr = trust_threshold(&deviations, params.tolerance);
+            let med = median(&deviations);
+            deviations.iter().map(|d| (d - med).abs() <= thr).collect()
+        }
+    };
+    let report = report::build(
+        &points,
+        &deviations,
+        &pose,
+        params,
+        mode,
+        iterations,
+        trusted_fit,
+    );
+    tracing::info!(verdict = %report.verdict, rms = report.statistics.rms, mode, "inspected");
+    Ok(Inspection {
+        points,
+        deviations,
+        trusted,
+        report,
+    })
+}
+
+fn in_datums(p: &[f64; 3], datums: &[Datum]) -> bool {
+    datums
+        .iter()
+        .any(|d| (0..3).map(|k| (p[k] - d.position[k]).powi(2)).sum::<f64>() <= d.radius * d.radius)
+}
+
+fn median(v: &[f64]) -> f64 {
+    let mut s: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+    if s.is_empty() {
+        return 0.0;
+    }
+    let m = s.len() / 2;
+    *s.select_nth_unstable_by(m, f64::total_cmp).1
+}
+
+/// Robust σ of the measurement noise: deviation minus the mean deviation of its 16 nearest
+/// neighbours, scaled for the neighbour mean's own noise.
+fn local_noise(points: &[[f64; 3]], dev: &[f64]) -> f64 {
+    let tree = crate::spatial::KdTree::new(points);
+    const K: usize = 16;
+    let resid: Vec<f64> = points
+        .par_iter()
+        .zip(dev.par_iter())
+        .map_init(Vec::new, |nn, (p, d)| {
+            tree.k_nearest(p, K + 1, nn);
+            let others: Vec<f64> = nn
+                .iter()
+                .filter(|(i, d2)| *d2 > 0.0 && dev[*i].is_finite())
+                .map(|(i, _)| dev[*i])
+                .collect();
+            if others.is_empty() || !d.is_finite() {
+                return f64::NAN;
+            }
+            d - others.iter().sum::<f64>() / others.len() as f64
+        })
+        .collect();
+    let abs: Vec<f64> = resid
+        .iter()
+        .filter(|r| r.is_finite())
+        .map(|r| r.abs())
+        .collect();
+    1.4826 * median(&abs) / (1.0 + 1.0 / K as f64).sqrt()
+}
+
+/// Trust threshold: three robust sigmas of the deviations about their median, at most half the
+/// tolerance and at least 0.02 mm.
+fn trust_threshold(dev: &[f64], tolerance: f64) -> f64 {
+    let med = median(dev);
+    let abs: Vec<f64> = dev.iter().map(|d| (d - med).abs()).collect();
+    (3.0 * 1.4826 * median(&abs)).clamp(0.02, 0.5 * tolerance)
+}
+
+/// Weighted point-to-plane fit of `pts` (cloud frame) onto the CAD surface from `pose`;
+/// `weight(p_cad)` selects points (0 = unused). Returns the pose and iterations run.
+fn fit_to_surface(
+    pts: &[[f64; 3]],
+    cad: &SignedDistance,
+    mut pose: Pose,
+    max_iter: usize,
+    weight: &(dyn Fn(&[f64; 3], f64) -> f64 + Sync),
+) -> (Pose, usize) {
+    let mut it = 0;
+    while it < max_iter {
+        it += 1;
+        let (ata, atb, n) = pts
+            .par_iter()
+            .fold(
+                || (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros(), 0usize),
+                |(mut ata, mut atb, mut n), x| {
+                    let p = (pose * Point3::from(*x)).coords;
+                    if let Some(c) = cad.query(&p) {
+                        let w = weight(&p.into(), c.distance);
+                        if w > 0.0 {
+                            let nrm = c.normal;
+                            let row = {
+                                let cr = p.cross(&nrm);
+                                Vector6::new(cr.x, cr.y, cr.z, nrm.x, nrm.y, nrm.z)
+                            };
+                            ata += row * row.transpose() * w;
+                            atb += row * (-(p - c.point).dot(&nrm)) * w;
+                            n += 1;
+                        }
+                    }
+                    (ata, atb, n)
+                },
+            )
+            .reduce(
+                || (Matrix6::zeros(), Vector6::zeros(), 0),
+                |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2),
+            );
+        if n < 6 {
+            break;
+        }
+        let Some(ch) = ata.cholesky() else { break };
+        let x = ch.solve(&atb);
+        let delta = Pose::from_parts(
+            Vector3::new(x[3], x[4], x[5]).into(),
+            UnitQuaternion::from_scaled_axis(Vector3::new(x[0], x[1], x[2])),
+        );
+        pose = delta * pose;
+        if delta.translation.vector.norm() < 1e-6 && delta.rotation.angle() < 1e-8 {
+            break;
+        }
+    }
+    (pose, it)
+}
+
+/// Fit on the datum regions only (membership evaluated in the CAD frame as the pose moves).
+fn datum_fit(
+    pts: &[[f64; 3]],
+    cad: &SignedDistance,
+    start: Pose,
+    params: &InspectParams,
+) -> (Pose, &'static str, f64, usize) {
+    // First a robust fit on everything to bring the datums into reach, then datums only.
+    let (rough, _) = fit_to_surface(pts, cad, start, 15, &|_, d| {
+        if d.abs() < 5.0 {
+            1.0
+        } else {
+            0.0
+        }
+    });
+    let datums = params.datums.clone();
+    let weight = move |p: &[f64; 3], _d: f64| if in_datums(p, &datums) { 1.0 } else { 0.0 };
+    let (pose, it) = fit_to_surface(pts, cad, rough, params.max_iterations, &weight);
+    let n_datum = pts
+        .iter()
+        .filter(|p| in_datums(&(pose * Point3::from(**p)).coords.into(), &params.datums))
+        .count();
+    (pose, "datums", n_datum as f64 / pts.len() as f64, it)
+}
+
+/// Grow the trusted set by iterative trimming until it stops changing.
+fn trusted_region_fit(
+    pts: &[[f64; 3]],
+    cad: &SignedDistance,
+    start: Pose,
+    params: &InspectParams,
+) -> (Pose, &'static str, f64, usize) {
+    let (mut pose, mut total) = fit_to_surface(pts, cad, start, 15, &|_, d| {
+        if d.abs() < 5.0 {
+            1.0
+        } else {
+            0.0
+        }
+    });
+    let mut trusted = vec![true; pts.len()];
+    // Measurement noise from the local roughness of the deviation field (a point against the
+    // mean of its neighbours): smooth deformation and misalignment cancel there, noise does not.
+    let noise = {
+        let cad_pts: Vec<[f64; 3]> = pts
+            .par_iter()
+            .map(|p| (pose * Point3::from(*p)).coords.into())
+            .collect();
+        let dev: Vec<f64> = cad_pts
+            .par_iter()
+            .map(|p| {
+                cad.query(&Vector3::from(*p))
+                    .map_or(f64::NAN, |c| c.distance)
+            })
+            .collect();
+        local_noise(&cad_pts, &dev)
+    };
+    // The threshold anneals from half the tolerance down to three noise sigmas, so the trusted
+    // set contracts onto the undeformed majority instead of settling on a compromise.
+    let floor = (3.0 * noise).max(0.01);
+    let mut thr = 0.5 * params.tolerance;
+    for _round in 0..40 {
+        let dev: Vec<f64> = pts
+            .par_iter()
+            .map(|p| {
+                cad.query(&(pose * Point3::from(*p)).coords)
+                    .map_or(f64::NAN, |c| c.distance)
+            })
+            .collect();
+        let current: Vec<f64> = dev
+            .iter()
+            .zip(&trusted)
+            .filter(|(d, t)| **t && d.is_finite())
+            .map(|(d, _)| *d)
+            .collect();
+        let med = median(&current);
+        let next: Vec<bool> = dev
+            .iter()
+            .map(|d| d.is_finite() && (d - med).abs() <= thr)
+            .collect();
+        let changed = next.iter().zip(&trusted).filter(|(a, b)| a != b).count();
+        if next.iter().filter(|t| **t).count() < 10 {
+            break;
+        }
+        trusted = next;
+        let set: Vec<[f64; 3]> = pts
+            .iter()
+            .zip(&trusted)
+            .filter(|(_, t)| **t)
+            .map(|(p, _)| *p)
+            .collect();
+        let (p, it) = fit_to_surface(&set, cad, pose, params.max_iterations, &|_, _| 1.0);
+        pose = p;
+        total += it;
+        if thr <= floor && changed * 1000 < pts.len() {
+            break;
+        }
+        thr = (thr * 0.7).max(floor);
+    }
+    tracing::debug!(noise, floor, "trusted-region fit");
+    let frac = trusted.iter().filter(|t| **t).count() as f64 / pts.len() as f64;
+    (pose, "trusted-region", frac, total)
+}
+
+/// Coarse alignment by principal axes of the cloud and of the CAD surface: the four proper
+/// rotations that match the axes are each refined briefly; the best fit wins.
+fn coarse_alignment(pts: &[[f64; 3]], cad: &SignedDistance) -> Pose {
+    let mesh = cad.mesh();
+    let (mut area_sum, mut c_cad) = (0.0, Vector3::zeros());
+    let mut samples = Vec::with_capacity(mesh.triangles.len());
+    for t in 0..mesh.triangles.len() {
+        let [a, b, c] = mesh.corners(t);
+        let area = 0.5 * (b - a).cross(&(c - a)).norm();
+        let centroid = (a + b + c) / 3.0;
+        samples.push((centroid, area));
+        area_sum += area;
+        c_cad += centroid * area;
+    }
+    c_cad /= area_sum.max(1e-300);
+    let cov_cad = samples
+        .iter()
+        .fold(nalgebra::Matrix3::zeros(), |m, (p, a)| {
+            m + (p - c_cad) * (p - c_cad).transpose() * *a
+        })
+        / area_sum.max(1e-300);
+    let c_cloud = pts
+        .iter()
+        .fold(Vector3::zeros(), |s, p| s + Vector3::from(*p))
+        / pts.len() as f64;
+    let cov_cloud = pts.iter().fold(nalgebra::Matrix3::zeros(), |m, p| {
+        let d = Vector3::from(*p) - c_cloud;
+        m + d * d.transpose()
+    }) / pts.len() as f64;
+    let axes = |m: nalgebra::Matrix3<f64>| {
+        let e = m.symmetric_eigen();
+        let mut idx = [0usize, 1, 2];
+        idx.sort_by(|&i, &j| e.eigenvalues[j].total_cmp(&e.eigenvalues[i]));
+        let mut r = nalgebra::Matrix3::from_columns(&[
+            e.eigenvectors.column(idx[0]).into_owned(),
+            e.eigenvectors.column(idx[1]).into_owned(),
+            e.eigenvectors.column(idx[2]).into_owned(),
+        ]);
+        if r.determinant() < 0.0 {
+            r.set_column(2, &(-r.column(2)));
+        }
+        r
+    };
+    let (a_cad, a_cloud) = (axes(cov_cad), axes(cov_cloud));
+    let sub: Vec<[f64; 3]> = pts
+        .iter()
+        .step_by((pts.len() / 5000).max(1))
+        .copied()
+        .collect();
+    let mut best: Option<(f64, Pose)> = None;
+    let mut candidates = vec![Pose::identity()];
+    for flips in [
+        [1.0, 1.0, 1.0],
+        [-1.0, -1.0, 1.0],
+        [-1.0, 1.0, -1.0],
+        [1.0, -1.0, -1.0],
+    ] {
+        let f = nalgebra::Matrix3::from_diagonal(&Vector3::from(flips));
+        let r = a_cad * f * a_cloud.transpose();
+        let rot = UnitQuaternion::from_matrix(&r);
+        candidates.push(Pose::from_parts((c_cad - rot * c_cloud).into(), rot));
+    }
+    for cand in candidates {
+        let (p, _) = fit_to_surface(&sub, cad, cand, 20, &|_, d| {
+            if d.abs() < 50.0 {
+                1.0
+            } else {
+                0.1
+            }
+        });
+        let rms = (sub
+            .iter()
+            .filter_map(|x| cad.query(&(p * Point3::from(*x)).coords))
+            .map(|c| c.distance.min(50.0).powi(2))
+            .sum::<f64>()
+            / sub.len() as f64)
+            .sqrt();
+        if best.as_ref().is_none_or(|b| rms < b.0) {
+            best = Some((rms, p));
+        }
+    }
+    best.map_or(Pose::identity(), |b| b.1)
+}

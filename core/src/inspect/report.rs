@@ -1,0 +1,181 @@
+//! The inspection report (`report.json`): verdict with reasons, registration, transform,
+//! deviation statistics, datum residuals and out-of-tolerance regions.
+
+use serde::Serialize;
+
+use super::{in_datums, out_of_tolerance_regions, InspectParams, Region};
+use crate::register::Pose;
+
+/// Deviation statistics over all points, mm.
+#[derive(Clone, Debug, Serialize)]
+pub struct Statistics {
+    /// Points.
+    pub points: usize,
+    /// Mean.
+    pub mean: f64,
+    /// Root mean square.
+    pub rms: f64,
+    /// Standard deviation.
+    pub std: f64,
+    /// Minimum.
+    pub min: f64,
+    /// Maximum.
+    pub max: f64,
+    /// 5th percentile.
+    pub p05: f64,
+    /// Median.
+    pub p50: f64,
+    /// 95th percentile.
+    pub p95: f64,
+    /// Fraction of points within ± tolerance.
+    pub within_tolerance: f64,
+}
+
+/// How well a datum region sits on its nominal surface.
+#[derive(Clone, Debug, Serialize)]
+pub struct DatumResidual {
+    /// Datum name.
+    pub name: String,
+    /// Points in the region.
+    pub points: usize,
+    /// Mean deviation, mm.
+    pub mean: f64,
+    /// RMS deviation, mm.
+    pub rms: f64,
+    /// 99th percentile of |deviation|, mm.
+    pub p99_abs: f64,
+    /// Whether p99_abs ≤ tolerance (and the datum was measured at all).
+    pub in_tolerance: bool,
+}
+
+/// Registration summary.
+#[derive(Clone, Debug, Serialize)]
+pub struct Registration {
+    /// "datums" or "trusted-region".
+    pub mode: String,
+    /// Fit iterations in total.
+    pub iterations: usize,
+    /// Fraction of the fit points trusted at the end.
+    pub trusted_fraction: f64,
+}
+
+/// The report.
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    /// "pass" or "fail".
+    pub verdict: String,
+    /// Why it failed (empty on pass).
+    pub reasons: Vec<String>,
+    /// Tolerance, mm.
+    pub tolerance_mm: f64,
+    /// Registration summary.
+    pub registration: Registration,
+    /// cad_from_cloud, row-major 4×4.
+    pub transform: [[f64; 4]; 4],
+    /// Deviation statistics.
+    pub statistics: Statistics,
+    /// Datum residuals.
+    pub datums: Vec<DatumResidual>,
+    /// Connected regions out of tolerance (at least 20 points), largest |peak| first.
+    pub regions_out_of_tolerance: Vec<Region>,
+}
+
+fn percentile(sorted: &[f64], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    sorted[((sorted.len() - 1) as f64 * q).round() as usize]
+}
+
+pub(super) fn build(
+    points: &[[f64; 3]],
+    dev: &[f64],
+    pose: &Pose,
+    params: &InspectParams,
+    mode: &str,
+    iterations: usize,
+    trusted_fraction: f64,
+) -> Report {
+    let tol = params.tolerance;
+    let mut sorted: Vec<f64> = dev.iter().copied().filter(|d| d.is_finite()).collect();
+    sorted.sort_by(f64::total_cmp);
+    let n = sorted.len().max(1) as f64;
+    let mean = sorted.iter().sum::<f64>() / n;
+    let rms = (sorted.iter().map(|d| d * d).sum::<f64>() / n).sqrt();
+    let statistics = Statistics {
+        points: sorted.len(),
+        mean,
+        rms,
+        std: (rms * rms - mean * mean).max(0.0).sqrt(),
+        min: sorted.first().copied().unwrap_or(f64::NAN),
+        max: sorted.last().copied().unwrap_or(f64::NAN),
+        p05: percentile(&sorted, 0.05),
+        p50: percentile(&sorted, 0.5),
+        p95: percentile(&sorted, 0.95),
+        within_tolerance: sorted.iter().filter(|d| d.abs() <= tol).count() as f64 / n,
+    };
+    let mut reasons = Vec::new();
+    let datums: Vec<DatumResidual> = params
+        .datums
+        .iter()
+        .map(|d| {
+            let mut v: Vec<f64> = points.iter().zip(dev).filter(|(p, e)| e.is_finite() && in_datums(p, std::slice::from_ref(d))).map(|(_, e)| *e).collect();
+            let k = v.len().max(1) as f64;
+            let mean = v.iter().sum::<f64>() / k;
+            let rms = (v.iter().map(|e| e * e).sum::<f64>() / k).sqrt();
+            v.iter_mut().for_each(|e| *e = e.abs());
+            v.sort_by(f64::total_cmp);
+            let p99 = percentile(&v, 0.99);
+            let in_tolerance = !v.is_empty() && p99 <= tol;
+            if v.is_empty() {
+                reasons.push(format!("datum {} was not measured (no points within {} mm of it)", d.name, d.radius));
+            } else if !in_tolerance {
+                reasons.push(format!("datum {} is out of tolerance: 99 % of its deviations within {p99:.3} mm > {tol} mm", d.name));
+            }
+            DatumResidual { name: d.name.clone(), points: v.len(), mean, rms, p99_abs: p99, in_tolerance }
+        })
+        .collect();
+    let spacing = cell_size(points);
+    let regions = out_of_tolerance_regions(points, dev, tol, spacing, 20);
+    for r in &regions {
+        reasons.push(format!(
+            "{} points out of tolerance around ({:.1}, {:.1}, {:.1}) mm, peak {:+.3} mm",
+            r.points, r.centroid[0], r.centroid[1], r.centroid[2], r.peak_deviation_mm
+        ));
+    }
+    let m = pose.to_homogeneous();
+    Report {
+        verdict: if reasons.is_empty() {
+            "pass".into()
+        } else {
+            "fail".into()
+        },
+        reasons,
+        tolerance_mm: tol,
+        registration: Registration {
+            mode: mode.into(),
+            iterations,
+            trusted_fraction,
+        },
+        transform: std::array::from_fn(|i| std::array::from_fn(|j| m[(i, j)])),
+        statistics,
+        datums,
+        regions_out_of_tolerance: regions,
+    }
+}
+
+/// Clustering cell: three times the typical point spacing (estimated from the bounding box
+/// area and the point count), at least 1 mm.
+fn cell_size(points: &[[f64; 3]]) -> f64 {
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for p in points {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let mut ext: Vec<f64> = (0..3).map(|k| (hi[k] - lo[k]).max(0.0)).collect();
+    ext.sort_by(|a, b| b.total_cmp(a));
+    let area = ext[0] * ext[1];
+    (3.0 * (area / points.len().max(1) as f64).sqrt()).max(1.0)
+}

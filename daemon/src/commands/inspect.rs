@@ -1,0 +1,82 @@
+//! `ris inspect`: a measured cloud against its CAD model — deviation.ply, deviation.png and
+//! report.json with the pass/fail verdict.
+
+use std::path::Path;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use ris_core::cloud::PointCloud;
+use ris_core::inspect::{
+    inspect, load_datums, write_deviation_ply, write_deviation_png, InspectParams, Report,
+};
+use ris_core::mesh::{SignedDistance, TriangleMesh};
+
+/// Inspect `cloud` against `cad` (STL) and write the three outputs into `out`.
+pub fn run(
+    cloud: &Path,
+    cad: &Path,
+    datums: Option<&Path>,
+    tolerance: f64,
+    out: &Path,
+) -> Result<Report> {
+    anyhow::ensure!(
+        tolerance.is_finite() && tolerance > 0.0,
+        "--tolerance must be a positive number of mm, got {tolerance}"
+    );
+    let c = PointCloud::read_ply(cloud).with_context(|| format!("reading {}", cloud.display()))?;
+    let mesh =
+        TriangleMesh::load_stl(cad).with_context(|| format!("reading CAD {}", cad.display()))?;
+    let datums = match datums {
+        Some(p) => load_datums(p).with_context(|| format!("reading datums {}", p.display()))?,
+        None => Vec::new(),
+    };
+    let t = Instant::now();
+    let sd = SignedDistance::new(mesh);
+    let pts: Vec<[f64; 3]> = c
+        .points
+        .iter()
+        .map(|p| [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])])
+        .collect();
+    let r = inspect(
+        &pts,
+        &sd,
+        &InspectParams {
+            tolerance,
+            datums,
+            ..InspectParams::default()
+        },
+    )
+    .with_context(|| format!("inspecting {}", cloud.display()))?;
+    let elapsed = t.elapsed();
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    write_deviation_ply(&out.join("deviation.ply"), &r.points, &r.deviations)?;
+    write_deviation_png(
+        &out.join("deviation.png"),
+        &r.points,
+        &r.deviations,
+        tolerance,
+    )?;
+    let json = serde_json::to_string_pretty(&r.report)?;
+    ris_core::io::write_atomic(&out.join("report.json"), json.as_bytes())?;
+    let s = &r.report.statistics;
+    println!(
+        "{}: {} points, deviation mean {:+.3} mm, RMS {:.3} mm, range {:+.3} … {:+.3} mm, {:.1} % within ±{tolerance} mm ({} registration, {:.1} s)",
+        r.report.verdict.to_uppercase(),
+        s.points,
+        s.mean,
+        s.rms,
+        s.min,
+        s.max,
+        100.0 * s.within_tolerance,
+        r.report.registration.mode,
+        elapsed.as_secs_f64()
+    );
+    for reason in &r.report.reasons {
+        println!("  - {reason}");
+    }
+    println!(
+        "wrote {}/deviation.ply, deviation.png, report.json",
+        out.display()
+    );
+    Ok(r.report)
+}

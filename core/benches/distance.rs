@@ -2,30 +2,13 @@
 #![allow(missing_docs)] // criterion_group! generates an undocumented public function
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use ris_core::geometry::Vec3;
 use ris_core::mesh::{SignedDistance, TriangleMesh};
 
 /// A curved panel of (n+1)² vertices and 2n² triangles over 1000 × 800 mm.
 fn panel(n: usize) -> TriangleMesh {
-    let z = |x: f64, y: f64| 60.0 * (x / 400.0).sin() * (y / 300.0).cos();
-    let mut m = TriangleMesh::default();
-    for j in 0..=n {
-        for i in 0..=n {
-            let (x, y) = (
-                -500.0 + 1000.0 * i as f64 / n as f64,
-                -400.0 + 800.0 * j as f64 / n as f64,
-            );
-            m.vertices.push(Vec3::new(x, y, z(x, y)));
-        }
-    }
-    let id = |i: usize, j: usize| (j * (n + 1) + i) as u32;
-    for j in 0..n {
-        for i in 0..n {
-            m.triangles.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
-            m.triangles.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
-        }
-    }
-    m
+    TriangleMesh::height_field(n, n, (-500.0, 500.0), (-400.0, 400.0), |x, y| {
+        60.0 * (x / 400.0).sin() * (y / 300.0).cos()
+    })
 }
 
 fn bench(c: &mut Criterion) {

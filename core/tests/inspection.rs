@@ -18,24 +18,7 @@ fn normal(x: f64, y: f64) -> Vec3 {
 
 /// The CAD panel (400 × 300 mm), written to and read back from a binary STL.
 fn cad(dir: &std::path::Path) -> SignedDistance {
-    let (nx, ny) = (200, 150);
-    let mut m = TriangleMesh::default();
-    for j in 0..=ny {
-        for i in 0..=nx {
-            let (x, y) = (
-                -200.0 + 400.0 * i as f64 / nx as f64,
-                -150.0 + 300.0 * j as f64 / ny as f64,
-            );
-            m.vertices.push(Vec3::new(x, y, surface(x, y)));
-        }
-    }
-    let id = |i: usize, j: usize| (j * (nx + 1) + i) as u32;
-    for j in 0..ny {
-        for i in 0..nx {
-            m.triangles.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
-            m.triangles.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
-        }
-    }
+    let m = TriangleMesh::height_field(200, 150, (-200.0, 200.0), (-150.0, 150.0), surface);
     let path = dir.join("panel.stl");
     stl::write_binary(&path, &m).expect("stl");
     SignedDistance::new(TriangleMesh::load_stl(&path).expect("load stl"))

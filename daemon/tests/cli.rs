@@ -434,30 +434,10 @@ fn merge_needs_to_common_and_deduplicates() {
 #[test]
 fn inspect_writes_deviation_map_report_and_exit_status() {
     use ris_core::cloud::PointCloud;
-    use ris_core::geometry::Vec3;
     use ris_core::mesh::{stl, TriangleMesh};
     let dir = tempfile::tempdir().expect("tempdir");
     let surface = |x: f64, y: f64| 20.0 * (x / 90.0).sin() * (y / 70.0).cos();
-    let (nx, ny) = (120, 80);
-    let mut mesh = TriangleMesh::default();
-    for j in 0..=ny {
-        for i in 0..=nx {
-            let (x, y) = (
-                -120.0 + 240.0 * i as f64 / nx as f64,
-                -80.0 + 160.0 * j as f64 / ny as f64,
-            );
-            mesh.vertices.push(Vec3::new(x, y, surface(x, y)));
-        }
-    }
-    let id = |i: usize, j: usize| (j * (nx + 1) + i) as u32;
-    for j in 0..ny {
-        for i in 0..nx {
-            mesh.triangles
-                .push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
-            mesh.triangles
-                .push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
-        }
-    }
+    let mesh = TriangleMesh::height_field(120, 80, (-120.0, 120.0), (-80.0, 80.0), surface);
     let cad = dir.path().join("part.stl");
     stl::write_binary(&cad, &mesh).expect("stl");
     // Measured: a 0.8 mm dent near (50, 20), shifted 1 mm in z overall (the pose is unknown).

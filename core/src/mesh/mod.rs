@@ -32,6 +32,35 @@ impl TriangleMesh {
         }
     }
 
+    /// A height field z = f(x, y) over [x0, x1] × [y0, y1] with nx × ny cells (two triangles
+    /// each, counter-clockwise seen from +z): CAD stand-ins for tests, benchmarks and demos.
+    pub fn height_field(
+        nx: usize,
+        ny: usize,
+        (x0, x1): (f64, f64),
+        (y0, y1): (f64, f64),
+        z: impl Fn(f64, f64) -> f64,
+    ) -> TriangleMesh {
+        let mut m = TriangleMesh::default();
+        for j in 0..=ny {
+            for i in 0..=nx {
+                let (x, y) = (
+                    x0 + (x1 - x0) * i as f64 / nx as f64,
+                    y0 + (y1 - y0) * j as f64 / ny as f64,
+                );
+                m.vertices.push(Vec3::new(x, y, z(x, y)));
+            }
+        }
+        let id = |i: usize, j: usize| (j * (nx + 1) + i) as u32;
+        for j in 0..ny {
+            for i in 0..nx {
+                m.triangles.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+                m.triangles.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+            }
+        }
+        m
+    }
+
     /// Corner positions of triangle `i`.
     #[inline]
     pub fn corners(&self, i: usize) -> [Vec3; 3] {

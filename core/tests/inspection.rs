@@ -134,7 +134,7 @@ fn with_datums_the_deformation_is_measured_not_absorbed() {
 }
 
 #[test]
-fn without_datums_trimming_keeps_most_of_the_deformation_out_of_the_fit() {
+fn without_datums_trusted_regions_keep_the_deformation_out_of_the_fit() {
     let dir = tempfile::tempdir().expect("tempdir");
     let cad = cad(dir.path());
     let (cloud, truth, _) = measure(true);

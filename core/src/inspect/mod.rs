@@ -3,9 +3,10 @@
 //! regions and a pass/fail verdict.
 //!
 //! Registration fits the cloud to the CAD surface (point-to-plane against the true closest
-//! points of the mesh) using only *trusted* points: the datum regions when the part has datums,
-//! otherwise a set grown by iterative trimming (fit, drop points whose deviation departs from
-//! the median by more than a robust threshold, refit, until the set no longer changes).
+//! points of the mesh) using only *trusted* points: the datum regions when the part has datums;
+//! otherwise regions estimated from the curvature of the deviation field (flat where only a
+//! rigid misalignment acts) and trimmed iteratively (fit, drop points whose deviation departs
+//! from the trusted median by more than an annealed threshold, refit, until the set converges).
 
 mod output;
 mod regions;
@@ -185,6 +186,90 @@ fn median(v: &[f64]) -> f64 {
     *s.select_nth_unstable_by(m, f64::total_cmp).1
 }
 
+/// Trusted seeds: points whose neighbourhood shows a deviation field without significant
+/// curvature. A rigid misalignment leaves the deviation field near-affine; a deformation bends it.
+/// The quadratic terms of a local fit dev ≈ a + b u + c v + d u² + e uv + f v² (u, v in the
+/// local tangent plane, 200 neighbours of a ~10 k subsample) are compared with what the
+/// measurement noise alone would give; neighbourhoods bent beyond two sigmas are left out.
+fn flat_seeds(pts: &[[f64; 3]], cad: &SignedDistance, pose: &Pose) -> Vec<bool> {
+    const K: usize = 200;
+    let cad_pts: Vec<[f64; 3]> = pts
+        .par_iter()
+        .map(|p| (pose * Point3::from(*p)).coords.into())
+        .collect();
+    // Bending is estimated on a ~10 k-point subsample, so 200 neighbours span a wide patch
+    // (its quadratic terms are then far above the noise).
+    let sub: Vec<usize> = (0..pts.len())
+        .step_by((pts.len() / 10_000).max(1))
+        .collect();
+    let sub_pts: Vec<[f64; 3]> = sub.iter().map(|&i| cad_pts[i]).collect();
+    let sub_dev: Vec<f64> = sub_pts
+        .par_iter()
+        .map(|p| {
+            cad.query(&Vector3::from(*p))
+                .map_or(f64::NAN, |c| c.distance)
+        })
+        .collect();
+    let sigma = local_noise(&sub_pts, &sub_dev).max(1e-6);
+    let tree = crate::spatial::KdTree::new(&sub_pts);
+    let centres: Vec<usize> = (0..sub_pts.len()).step_by(3).collect();
+    let bend: Vec<f64> = centres
+        .par_iter()
+        .map_init(Vec::new, |nn, &c| {
+            tree.k_nearest(&sub_pts[c], K, nn);
+            let o = Vector3::from(sub_pts[c]);
+            let mut cov = nalgebra::Matrix3::<f64>::zeros();
+            for &(i, _) in nn.iter() {
+                let d = Vector3::from(sub_pts[i]) - o;
+                cov += d * d.transpose();
+            }
+            let e = cov.symmetric_eigen();
+            let mut idx = [0usize, 1, 2];
+            idx.sort_by(|&i, &j| e.eigenvalues[j].total_cmp(&e.eigenvalues[i]));
+            let (eu, ev) = (
+                e.eigenvectors.column(idx[0]).into_owned(),
+                e.eigenvectors.column(idx[1]).into_owned(),
+            );
+            let mut ata = Matrix6::<f64>::zeros();
+            let mut atb = Vector6::<f64>::zeros();
+            for &(i, _) in nn.iter() {
+                if !sub_dev[i].is_finite() {
+                    continue;
+                }
+                let d = Vector3::from(sub_pts[i]) - o;
+                let (u, v) = (d.dot(&eu), d.dot(&ev));
+                let row = Vector6::new(1.0, u, v, u * u, u * v, v * v);
+                ata += row * row.transpose();
+                atb += row * sub_dev[i];
+            }
+            // Bending and its expected value from noise alone (σ² (AᵀA)⁻¹ on the quadratic
+            // terms): their ratio is a significance, independent of patch size and density.
+            match ata.try_inverse() {
+                Some(inv) => {
+                    let x = inv * atb;
+                    let bend2 = x[3] * x[3] + 0.5 * x[4] * x[4] + x[5] * x[5];
+                    let noise2 = sigma * sigma * (inv[(3, 3)] + 0.5 * inv[(4, 4)] + inv[(5, 5)]);
+                    (bend2 / noise2.max(1e-300)).sqrt()
+                }
+                None => f64::INFINITY,
+            }
+        })
+        .collect();
+    // Flat: bending within two noise sigmas (pure noise gives 1.5 at the 90th percentile).
+    let limit = 2.0;
+    let flat: Vec<bool> = bend.iter().map(|b| *b <= limit).collect();
+    let centre_pts: Vec<[f64; 3]> = centres.iter().map(|&c| sub_pts[c]).collect();
+    let centre_tree = crate::spatial::KdTree::new(&centre_pts);
+    let seed: Vec<bool> = cad_pts
+        .par_iter()
+        .map(|p| centre_tree.nearest(p).is_some_and(|(c, _)| flat[c]))
+        .collect();
+    if seed.iter().filter(|s| **s).count() < pts.len() / 10 {
+        return vec![true; pts.len()];
+    }
+    seed
+}
+
 /// Robust σ of the measurement noise: deviation minus the mean deviation of its 16 nearest
 /// neighbours, scaled for the neighbour mean's own noise.
 fn local_noise(points: &[[f64; 3]], dev: &[f64]) -> f64 {
@@ -316,7 +401,10 @@ fn trusted_region_fit(
             0.0
         }
     });
-    let mut trusted = vec![true; pts.len()];
+    // Seeds: points where the deviation field is locally flat (see `flat_seeds`); trimming
+    // below works inside them only.
+    let seeds = flat_seeds(pts, cad, &pose);
+    let mut trusted = seeds.clone();
     // Measurement noise from the local roughness of the deviation field (a point against the
     // mean of its neighbours): smooth deformation and misalignment cancel there, noise does not.
     let noise = {
@@ -352,9 +440,12 @@ fn trusted_region_fit(
             .map(|(d, _)| *d)
             .collect();
         let med = median(&current);
+        // Only seeds (flat neighbourhoods) may be trusted: growing into bent regions would let
+        // the deformation's tails pull the fit.
         let next: Vec<bool> = dev
             .iter()
-            .map(|d| d.is_finite() && (d - med).abs() <= thr)
+            .zip(&seeds)
+            .map(|(d, s)| *s && d.is_finite() && (d - med).abs() <= thr)
             .collect();
         let changed = next.iter().zip(&trusted).filter(|(a, b)| a != b).count();
         if next.iter().filter(|t| **t).count() < 10 {

@@ -163,7 +163,7 @@ pub fn closest_on_first(o1: &Vec3, d1: &Vec3, o2: &Vec3, d2: &Vec3) -> Option<(f
 }
 
 /// The rotation of a row-major 4×4 rigid transform as a unit quaternion.
-pub fn nalgebra_rotation(m: &[[f64; 4]; 4]) -> nalgebra::UnitQuaternion<f64> {
+pub fn rotation_of(m: &[[f64; 4]; 4]) -> nalgebra::UnitQuaternion<f64> {
     nalgebra::UnitQuaternion::from_matrix(&Mat3::from_fn(|i, j| m[i][j]))
 }
 

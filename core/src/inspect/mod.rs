@@ -101,8 +101,6 @@ pub struct Inspection {
     pub points: Vec<[f64; 3]>,
     /// Signed deviation per point (SPEC §2 sign), mm.
     pub deviations: Vec<f64>,
-    /// Whether each point was used (trusted) by the final fit.
-    pub trusted: Vec<bool>,
     /// The report (verdict, transform, statistics, datums, regions).
     pub report: Report,
 }
@@ -137,22 +135,8 @@ pub fn inspect(
     } else {
         datum_fit(&fit, cad, start, params)
     };
-    let points: Vec<[f64; 3]> = cloud
-        .par_iter()
-        .map(|p| (pose * Point3::from(*p)).coords.into())
-        .collect();
+    let points = to_cad(cloud, &pose);
     let deviations = cad.query_all(&points);
-    let trusted: Vec<bool> = match mode {
-        "datums" => points
-            .iter()
-            .map(|p| in_datums(p, &params.datums))
-            .collect(),
-        _ => {
-            let thr = trust_threshold(&deviations, params.tolerance);
-            let med = median(&deviations);
-            deviations.iter().map(|d| (d - med).abs() <= thr).collect()
-        }
-    };
     let report = report::build(
         &points,
         &deviations,
@@ -166,9 +150,15 @@ pub fn inspect(
     Ok(Inspection {
         points,
         deviations,
-        trusted,
         report,
     })
+}
+
+/// `pts` mapped into the CAD frame by `pose`.
+fn to_cad(pts: &[[f64; 3]], pose: &Pose) -> Vec<[f64; 3]> {
+    pts.par_iter()
+        .map(|p| (pose * Point3::from(*p)).coords.into())
+        .collect()
 }
 
 fn in_datums(p: &[f64; 3], datums: &[Datum]) -> bool {
@@ -193,23 +183,14 @@ fn median(v: &[f64]) -> f64 {
 /// measurement noise alone would give; neighbourhoods bent beyond two sigmas are left out.
 fn flat_seeds(pts: &[[f64; 3]], cad: &SignedDistance, pose: &Pose) -> Vec<bool> {
     const K: usize = 200;
-    let cad_pts: Vec<[f64; 3]> = pts
-        .par_iter()
-        .map(|p| (pose * Point3::from(*p)).coords.into())
-        .collect();
+    let cad_pts = to_cad(pts, pose);
     // Bending is estimated on a ~10 k-point subsample, so 200 neighbours span a wide patch
     // (its quadratic terms are then far above the noise).
     let sub: Vec<usize> = (0..pts.len())
         .step_by((pts.len() / 10_000).max(1))
         .collect();
     let sub_pts: Vec<[f64; 3]> = sub.iter().map(|&i| cad_pts[i]).collect();
-    let sub_dev: Vec<f64> = sub_pts
-        .par_iter()
-        .map(|p| {
-            cad.query(&Vector3::from(*p))
-                .map_or(f64::NAN, |c| c.distance)
-        })
-        .collect();
+    let sub_dev = cad.query_all(&sub_pts);
     let sigma = local_noise(&sub_pts, &sub_dev).max(1e-6);
     let tree = crate::spatial::KdTree::new(&sub_pts);
     let centres: Vec<usize> = (0..sub_pts.len()).step_by(3).collect();
@@ -299,16 +280,6 @@ fn local_noise(points: &[[f64; 3]], dev: &[f64]) -> f64 {
     1.4826 * median(&abs) / (1.0 + 1.0 / K as f64).sqrt()
 }
 
-/// Trust threshold: three robust sigmas of the deviations about their median, at most half the
-/// tolerance and at least 0.02 mm.
-fn trust_threshold(dev: &[f64], tolerance: f64) -> f64 {
-    let med = median(dev);
-    let abs: Vec<f64> = dev.iter().map(|d| (d - med).abs()).collect();
-    (3.0 * 1.4826 * median(&abs)).clamp(0.02, 0.5 * tolerance)
-}
-
-/// Weighted point-to-plane fit of `pts` (cloud frame) onto the CAD surface from `pose`;
-/// `weight(p_cad)` selects points (0 = unused). Returns the pose and iterations run.
 fn fit_to_surface(
     pts: &[[f64; 3]],
     cad: &SignedDistance,
@@ -408,31 +379,15 @@ fn trusted_region_fit(
     // Measurement noise from the local roughness of the deviation field (a point against the
     // mean of its neighbours): smooth deformation and misalignment cancel there, noise does not.
     let noise = {
-        let cad_pts: Vec<[f64; 3]> = pts
-            .par_iter()
-            .map(|p| (pose * Point3::from(*p)).coords.into())
-            .collect();
-        let dev: Vec<f64> = cad_pts
-            .par_iter()
-            .map(|p| {
-                cad.query(&Vector3::from(*p))
-                    .map_or(f64::NAN, |c| c.distance)
-            })
-            .collect();
-        local_noise(&cad_pts, &dev)
+        let cad_pts = to_cad(pts, &pose);
+        local_noise(&cad_pts, &cad.query_all(&cad_pts))
     };
     // The threshold anneals from half the tolerance down to three noise sigmas, so the trusted
     // set contracts onto the undeformed majority instead of settling on a compromise.
     let floor = (3.0 * noise).max(0.01);
     let mut thr = 0.5 * params.tolerance;
     for _round in 0..40 {
-        let dev: Vec<f64> = pts
-            .par_iter()
-            .map(|p| {
-                cad.query(&(pose * Point3::from(*p)).coords)
-                    .map_or(f64::NAN, |c| c.distance)
-            })
-            .collect();
+        let dev = cad.query_all(&to_cad(pts, &pose));
         let current: Vec<f64> = dev
             .iter()
             .zip(&trusted)

@@ -78,7 +78,7 @@ impl TransformFile {
                 format!("the 3×3 block is not a rotation (|RᵀR − I| = {err:.1e})"),
             ));
         }
-        let rot = nalgebra::UnitQuaternion::from_matrix(&r);
+        let rot = crate::geometry::rotation_of(&f.matrix);
         Ok(Pose::from_parts(
             nalgebra::Translation3::new(f.matrix[0][3], f.matrix[1][3], f.matrix[2][3]),
             rot,

@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use super::shapes::{Object, Shape};
 use super::texture::Texture;
-use crate::geometry::{rotation_xyz_deg, Distortion, Mat3, Pinhole, Vec3};
+use crate::geometry::{rotation_xyz_deg, Mat3, Pinhole, Vec3};
 use crate::io::read_toml;
 use crate::mesh::{Bvh, TriangleMesh};
 use crate::sensor::{CameraSection, SensorFile};
@@ -473,10 +473,5 @@ impl Scene {
             }
         }
         best
-    }
-
-    /// Distortion-free check that the scene's camera is usable.
-    pub fn camera_distortion(&self) -> Distortion {
-        self.camera.dist
     }
 }

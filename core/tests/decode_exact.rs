@@ -46,14 +46,7 @@ fn plane_scene(
     let mut object = vec![ObjectSection {
         shape: "plane".into(),
         material: "matte".into(),
-        center: None,
-        size: None,
-        radius: None,
-        height: None,
-        file: None,
-        position: None,
-        rotation_deg: None,
-        scale: None,
+        ..Default::default()
     }];
     object.extend(objects);
     let file = SceneFile {
@@ -221,12 +214,7 @@ fn parallax_model_agrees_with_eq_2_37_in_the_parallel_configuration() {
         material: "matte".into(),
         center: Some([0.0, 0.0, 30.0]),
         size: Some([120.0, 90.0, 60.0]),
-        radius: None,
-        height: None,
-        file: None,
-        position: None,
-        rotation_deg: None,
-        scale: None,
+        ..Default::default()
     };
     let scene = plane_scene(
         Vec3::new(d, 0.0, s),

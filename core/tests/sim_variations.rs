@@ -110,14 +110,10 @@ fn projector_on_the_other_side_and_a_tilted_camera_viewing_a_mesh() {
     f.object.push(ObjectSection {
         shape: "mesh".into(),
         material: "part".into(),
-        center: None,
-        size: None,
-        radius: None,
-        height: None,
         file: Some("cap.stl".into()),
         position: Some([40.0, 20.0, 0.0]),
         rotation_deg: Some([0.0, 0.0, 20.0]),
-        scale: None,
+        ..Default::default()
     });
     check(
         "mirrored projector, tilted camera, STL part",

@@ -554,3 +554,115 @@ fn inspect_writes_deviation_map_report_and_exit_status() {
         &out3,
     );
 }
+
+#[test]
+fn calibrate_cell_writes_to_common_from_a_simulated_gauge() {
+    use ris_core::calibrate::Gauge;
+    use ris_core::geometry::rotation_xyz_deg;
+    use ris_core::mesh::{stl, TriangleMesh};
+    use ris_core::sensor::Sensor;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let surface = |x: f64, y: f64| -(x * x + y * y) / 6000.0;
+    let mesh = TriangleMesh::height_field(80, 64, (-200.0, 200.0), (-160.0, 160.0), surface);
+    stl::write_binary(&dir.path().join("gauge.stl"), &mesh).expect("stl");
+    let gauge = Gauge::jittered_grid((-200.0, 200.0), (-160.0, 160.0), 40.0, 5.0, 3, surface);
+    gauge.save(&dir.path().join("gauge.toml")).expect("gauge");
+    // A 320x240 camera at 0.9 mm/px; the gauge rotated 30° and lifted in the sensor frame.
+    let (rot, pos) = ([1.5, -1.0, 30.0], [12.0, -8.0, 80.0]);
+    let scene = format!(
+        r#"
+[camera]
+width = 320
+height = 240
+k = [[1778.0, 0.0, 159.5], [0.0, 1778.0, 119.5], [0.0, 0.0, 1.0]]
+r = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]
+t = [0.0, 0.0, 1600.0]
+noise = 1.0
+[projector]
+width = 1024
+height = 768
+k = [[1800.0, 0.0, 511.5], [0.0, 1800.0, 383.5], [0.0, 0.0, 1.0]]
+r = [[0.954479978035, 0.0, -0.298274993136], [0.0, -1.0, 0.0], [-0.298274993136, 0.0, -0.954479978035]]
+t = [0.0, 0.0, 1676.305461424]
+ambient = 0.03
+blur = 0.6
+[material.paint]
+albedo = 0.03
+[[object]]
+shape = "mesh"
+file = "gauge.stl"
+markers = "gauge.toml"
+position = {pos:?}
+rotation_deg = {rot:?}
+material = "paint"
+[render]
+supersample = 3
+rows = false
+"#
+    );
+    std::fs::write(dir.path().join("scene.toml"), scene).expect("scene");
+    let sim = dir.path().join("sim");
+    let o = ris(&[
+        "simulate",
+        "--scene",
+        s(&dir.path().join("scene.toml")),
+        "--out",
+        s(&sim),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let cloud = dir.path().join("gauge.ply");
+    let sensor = sim.join("sensor.toml");
+    let o = ris(&[
+        "reconstruct",
+        "--sensor",
+        s(&sensor),
+        s(&sim.join("capture")),
+        "--out",
+        s(&cloud),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let input = format!("{}:{}", s(&sensor), s(&cloud));
+
+    // A gauge file that does not describe this part is refused and the sensor file is untouched.
+    let other = dir.path().join("other.toml");
+    Gauge::jittered_grid((-200.0, 200.0), (-160.0, 160.0), 40.0, 5.0, 11, surface)
+        .save(&other)
+        .expect("other");
+    let before = std::fs::read(&sensor).expect("sensor");
+    let o = ris(&["calibrate", "cell", "--gauge", s(&other), &input]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("gauge fit failed"), "{}", stderr(&o));
+    assert_eq!(std::fs::read(&sensor).expect("sensor"), before);
+
+    let report = dir.path().join("cell.json");
+    let o = ris(&[
+        "calibrate",
+        "cell",
+        "--gauge",
+        s(&dir.path().join("gauge.toml")),
+        &input,
+        "--report",
+        s(&report),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    eprintln!("{}", String::from_utf8_lossy(&o.stdout));
+    let m = Sensor::load(&sensor)
+        .expect("sensor")
+        .to_common
+        .expect("to_common");
+    // Truth: sensor world = R · cell + pos, so cell = Rᵀ (world − pos).
+    let r = rotation_xyz_deg(rot);
+    let p = ris_core::geometry::Vec3::from(pos);
+    for q in [[0.0, 0.0, 80.0], [100.0, 80.0, 60.0], [-120.0, -60.0, 70.0]] {
+        let w = ris_core::geometry::Vec3::from(q);
+        let truth = r.transpose() * (w - p);
+        let got = (m * w.push(1.0)).xyz();
+        assert!((got - truth).norm() < 0.1, "{q:?}: {got} vs {truth}");
+    }
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&report).expect("report")).expect("json");
+    assert!(
+        json["sensors"][0]["matched"].as_u64().expect("matched") >= 15,
+        "{json}"
+    );
+}

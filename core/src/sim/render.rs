@@ -91,8 +91,7 @@ impl RenderCache {
                             if n.dot(&d) > 0.0 {
                                 n = -n;
                             }
-                            let mat = &scene.materials[scene.objects[obj].material];
-                            let albedo = (mat.albedo * mat.texture.factor(&p)).clamp(0.0, 1.0);
+                            let albedo = scene.albedo(obj, &p);
                             row.ambient[u] += (albedo * scene.ambient * inv_n) as f32;
                             if let Some((pu, pv, irradiance)) = direct_light(scene, &p, &n, &op, d0)
                             {

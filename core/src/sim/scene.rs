@@ -6,7 +6,8 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use super::shapes::{Object, Shape};
-use super::texture::Texture;
+use super::texture::{MarkerPaint, Texture};
+use crate::calibrate::Gauge;
 use crate::geometry::{rotation_xyz_deg, Mat3, Pinhole, Vec3};
 use crate::io::read_toml;
 use crate::mesh::{Bvh, TriangleMesh};
@@ -96,7 +97,7 @@ pub struct MaterialSection {
 }
 
 /// `[[object]]`.
-#[derive(Clone, Debug, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ObjectSection {
     /// plane, box, sphere, dome, cylinder or mesh.
@@ -118,7 +119,7 @@ pub struct ObjectSection {
     /// STL file, relative to the scene file.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub file: Option<String>,
-    /// Mesh translation.
+    /// Mesh translation (moves the painted markers too).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub position: Option<[f64; 3]>,
     /// Mesh rotation, XYZ Euler degrees.
@@ -127,6 +128,13 @@ pub struct ObjectSection {
     /// Mesh scale.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub scale: Option<f64>,
+    /// Gauge file whose markers are painted on this object; centres are in the object's own
+    /// frame and move with its pose.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub markers: Option<String>,
+    /// Albedo of the painted markers (default 0.85).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub marker_albedo: Option<f64>,
 }
 
 /// `[render]`: simulator settings (optional).
@@ -364,6 +372,29 @@ impl Scene {
                     )
                 })
             };
+            let r: Mat3 = rotation_xyz_deg(o.rotation_deg.unwrap_or([0.0; 3]));
+            let scale = o.scale.unwrap_or(1.0);
+            let position = Vec3::from(o.position.unwrap_or([0.0; 3]));
+            let markers = match &o.markers {
+                None => None,
+                Some(file) => {
+                    let gauge = Gauge::load(&base.join(file))?;
+                    let albedo = o.marker_albedo.unwrap_or(0.85);
+                    if !(0.0..=1.0).contains(&albedo) {
+                        return Err(Error::invalid(
+                            ctx,
+                            f("marker_albedo"),
+                            format!("{albedo} is outside 0..1"),
+                        ));
+                    }
+                    let centers: Vec<Vec3> = gauge
+                        .centers
+                        .iter()
+                        .map(|c| r * (c * scale) + position)
+                        .collect();
+                    Some(MarkerPaint::new(&centers, gauge.radius * scale, albedo))
+                }
+            };
             let shape = match o.shape.as_str() {
                 "plane" => Shape::Plane,
                 "box" => {
@@ -395,12 +426,7 @@ impl Scene {
                         Error::invalid(ctx, f("file"), "a mesh needs an STL file")
                     })?;
                     let mut mesh = TriangleMesh::load_stl(&base.join(file_name))?;
-                    let r: Mat3 = rotation_xyz_deg(o.rotation_deg.unwrap_or([0.0; 3]));
-                    mesh.transform(
-                        &r,
-                        o.scale.unwrap_or(1.0),
-                        &Vec3::from(o.position.unwrap_or([0.0; 3])),
-                    );
+                    mesh.transform(&r, scale, &position);
                     Shape::Mesh(Box::new(Bvh::new(mesh)))
                 }
                 other => {
@@ -413,7 +439,11 @@ impl Scene {
                     ))
                 }
             };
-            objects.push(Object { shape, material });
+            objects.push(Object {
+                shape,
+                material,
+                markers,
+            });
         }
         if objects.is_empty() {
             return Err(Error::invalid(ctx, "object", "the scene has no objects"));
@@ -451,9 +481,20 @@ impl Scene {
             s.objects.push(Object {
                 shape: Shape::Plane,
                 material: s.materials.len() - 1,
+                markers: None,
             });
         }
         s
+    }
+
+    /// Albedo of object `obj` at surface point `p` (material, texture, painted markers).
+    pub fn albedo(&self, obj: usize, p: &Vec3) -> f64 {
+        let o = &self.objects[obj];
+        if let Some(m) = o.markers.as_ref().filter(|m| m.covers(p)) {
+            return m.albedo;
+        }
+        let mat = &self.materials[o.material];
+        (mat.albedo * mat.texture.factor(p)).clamp(0.0, 1.0)
     }
 
     /// Nearest hit along `o + t d`, `t` in `(t_min, t_max)`: (t, outward unit normal, object).

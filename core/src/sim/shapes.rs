@@ -1,5 +1,6 @@
 //! Analytic primitives and meshes with exact ray intersection.
 
+use super::texture::MarkerPaint;
 use crate::geometry::Vec3;
 use crate::mesh::Bvh;
 
@@ -10,6 +11,8 @@ pub struct Object {
     pub shape: Shape,
     /// Index into the scene's materials.
     pub material: usize,
+    /// Markers painted over the material (gauges).
+    pub markers: Option<MarkerPaint>,
 }
 
 /// Geometry of a scene object.

@@ -1,7 +1,10 @@
 //! Procedural albedo textures (smooth value noise, checkers) so that decoding is tested on
 //! surfaces whose reflectance changes from pixel to pixel.
 
+use std::sync::Arc;
+
 use crate::geometry::Vec3;
+use crate::spatial::KdTree;
 
 /// An albedo modulation `1 + amplitude × n(p)`, n in [−1, 1].
 #[derive(Clone, Debug, PartialEq)]
@@ -84,4 +87,33 @@ fn value_noise(p: Vec3) -> f64 {
         ),
         w,
     )
+}
+
+/// Circular markers painted on an object (a marker gauge): points within `radius` of a centre
+/// take the marker's albedo instead of the material's.
+#[derive(Clone, Debug)]
+pub struct MarkerPaint {
+    centers: Arc<KdTree>,
+    radius2: f64,
+    /// Albedo of the markers.
+    pub albedo: f64,
+}
+
+impl MarkerPaint {
+    /// Markers of `radius` at `centers` (scene world frame).
+    pub fn new(centers: &[Vec3], radius: f64, albedo: f64) -> MarkerPaint {
+        let pts: Vec<[f64; 3]> = centers.iter().map(|c| [c.x, c.y, c.z]).collect();
+        MarkerPaint {
+            centers: Arc::new(KdTree::new(&pts)),
+            radius2: radius * radius,
+            albedo,
+        }
+    }
+
+    /// Whether `p` lies on a marker.
+    pub fn covers(&self, p: &Vec3) -> bool {
+        self.centers
+            .nearest(&[p.x, p.y, p.z])
+            .is_some_and(|(_, d2)| d2 <= self.radius2)
+    }
 }

@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand, ValueEnum};
+use ris_core::calibrate::GaugeParams;
 use ris_core::decode::DecodeParams;
 use ris_core::pattern::CodeLayout;
 use ris_core::sensor::ModelChoice;
@@ -50,6 +51,26 @@ impl DecodeArgs {
             ..DecodeParams::default()
         }
     }
+}
+
+#[derive(Subcommand)]
+enum CalibrateCommand {
+    /// Each sensor's [to_common] from its measurement of a marker gauge (white 5 mm markers
+    /// with CMM-measured centres); sensor files are written only when every sensor passes.
+    Cell {
+        /// Gauge file: `radius` and `[[marker]] center` in the cell frame.
+        #[arg(long)]
+        gauge: PathBuf,
+        /// Each sensor's gauge measurement as SENSOR.toml:CLOUD.ply.
+        #[arg(required = true)]
+        inputs: Vec<String>,
+        /// Largest accepted RMS of the matched marker centres, mm.
+        #[arg(long, default_value_t = GaugeParams::default().max_rms)]
+        max_rms: f64,
+        /// Write a JSON report (transforms, markers, rejected clusters, overlaps).
+        #[arg(long)]
+        report: Option<PathBuf>,
+    },
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -136,6 +157,9 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Calibration: the sensors' transforms into the cell frame.
+    #[command(subcommand)]
+    Calibrate(CalibrateCommand),
     /// Merge sensor clouds into the cell frame (each sensor's [to_common]), de-duplicating overlaps.
     Merge {
         /// Inputs as SENSOR.toml:CLOUD.ply.
@@ -252,6 +276,22 @@ fn main() -> Result<()> {
                 // Distinct exit status for a failed part, so scripts can branch on the verdict.
                 std::process::exit(3);
             }
+        }
+        Command::Calibrate(CalibrateCommand::Cell {
+            gauge,
+            inputs,
+            max_rms,
+            report,
+        }) => {
+            anyhow::ensure!(
+                max_rms.is_finite() && max_rms > 0.0,
+                "--max-rms must be positive, got {max_rms}"
+            );
+            let params = GaugeParams {
+                max_rms,
+                ..GaugeParams::default()
+            };
+            commands::calibrate::cell(&gauge, &inputs, &params, report.as_deref())?;
         }
         Command::Merge {
             inputs,

@@ -14,16 +14,17 @@ pub fn run(inputs: &[String], radius: f64, out: &Path) -> Result<PointCloud> {
     );
     let mut clouds = Vec::new();
     for arg in inputs {
-        let Some((sensor, cloud)) = arg.rsplit_once(':') else {
-            bail!("`{arg}` is not SENSOR.toml:CLOUD.ply");
-        };
-        let s = Sensor::load(Path::new(sensor))
-            .with_context(|| format!("reading sensor file {sensor}"))?;
+        let (sensor, cloud) = super::parse_sensor_cloud(arg)?;
+        let s = Sensor::load(&sensor)
+            .with_context(|| format!("reading sensor file {}", sensor.display()))?;
         let Some(m) = s.to_common else {
-            bail!("{sensor}: no [to_common] transform; calibrate the cell (sensor → common frame) first");
+            bail!(
+                "{}: no [to_common] transform; calibrate the cell (ris calibrate cell) first",
+                sensor.display()
+            );
         };
         let c =
-            PointCloud::read_ply(Path::new(cloud)).with_context(|| format!("reading {cloud}"))?;
+            PointCloud::read_ply(&cloud).with_context(|| format!("reading {}", cloud.display()))?;
         clouds.push((c, m));
     }
     anyhow::ensure!(

@@ -1,5 +1,6 @@
 //! One module per `ris` sub-command.
 
+pub mod calibrate;
 pub mod decode;
 pub mod demo;
 pub mod inspect;
@@ -9,7 +10,17 @@ pub mod reconstruct;
 pub mod register;
 pub mod simulate;
 
+use std::path::PathBuf;
+
 use anyhow::{bail, Context, Result};
+
+/// Split a `SENSOR.toml:CLOUD.ply` argument.
+pub fn parse_sensor_cloud(arg: &str) -> Result<(PathBuf, PathBuf)> {
+    match arg.rsplit_once(':') {
+        Some((s, c)) if !s.is_empty() && !c.is_empty() => Ok((s.into(), c.into())),
+        _ => bail!("`{arg}` is not SENSOR.toml:CLOUD.ply"),
+    }
+}
 
 /// Parse `WIDTHxHEIGHT` (e.g. `1024x768`).
 pub fn parse_size(s: &str) -> Result<(u32, u32)> {

@@ -1,8 +1,10 @@
 //! Projector patterns (SPEC §3): names, the multi-shot order and rendering for any projector size.
 
 mod gray;
+mod mask;
 
 pub use gray::{binary_to_gray, flipped_bit, gray_to_binary};
+pub use mask::{ProjectionMask, MASK_SCALE};
 
 use crate::{Error, Result};
 

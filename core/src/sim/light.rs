@@ -1,6 +1,8 @@
 //! What the projector emits, as seen through its defocus: each projector pixel is a square of
 //! constant light blurred by a Gaussian of σ = `blur`, integrated exactly per pixel.
 
+use crate::pattern::ProjectionMask;
+
 /// Samples of a 1-D blurred profile per projector pixel.
 const RES: f32 = 16.0;
 
@@ -71,11 +73,74 @@ fn phi(x: f32) -> f32 {
     (0.5 * (1.0 + erf)) as f32
 }
 
-/// Projector output of one pattern (values 0..1 relative to full white).
+/// Projector output of one pattern (values 0..1 relative to full white): a separable stripe
+/// profile, optionally multiplied by a slowly varying projection mask (blurred, then sampled
+/// bilinearly; the product of the blurs stands for the blur of the product, which holds where
+/// the mask is smooth at the scale of the defocus).
 #[derive(Clone, Debug)]
 pub struct Light {
     u: Profile,
     v: Profile,
+    mask: Option<std::sync::Arc<BlurredMask>>,
+}
+
+/// A projection mask blurred by the projector's defocus.
+#[derive(Clone, Debug)]
+struct BlurredMask {
+    width: usize,
+    height: usize,
+    values: Vec<f32>,
+}
+
+impl BlurredMask {
+    fn new(mask: &ProjectionMask, sigma: f32) -> BlurredMask {
+        let (w, h) = (mask.width as usize, mask.height as usize);
+        let radius = (3.0 * sigma).ceil() as isize;
+        let kernel: Vec<f32> = if sigma <= 1e-6 {
+            vec![1.0]
+        } else {
+            (-radius..=radius)
+                .map(|k| phi((k as f32 + 0.5) / sigma) - phi((k as f32 - 0.5) / sigma))
+                .collect()
+        };
+        let r = (kernel.len() / 2) as isize;
+        let blur =
+            |src: &[f32], dst: &mut [f32], n: usize, stride: usize, lines: usize, step: usize| {
+                for l in 0..lines {
+                    for i in 0..n {
+                        let mut acc = 0.0;
+                        for (k, kv) in kernel.iter().enumerate() {
+                            let j = i as isize + k as isize - r;
+                            if j >= 0 && (j as usize) < n {
+                                acc += kv * src[l * step + j as usize * stride];
+                            }
+                        }
+                        dst[l * step + i * stride] = acc;
+                    }
+                }
+            };
+        let mut tmp = vec![0.0; w * h];
+        let mut out = vec![0.0; w * h];
+        blur(&mask.values, &mut tmp, w, 1, h, w);
+        blur(&tmp, &mut out, h, w, w, 1);
+        BlurredMask {
+            width: w,
+            height: h,
+            values: out,
+        }
+    }
+
+    #[inline]
+    fn sample(&self, u: f32, v: f32) -> f32 {
+        let x = u.clamp(0.0, (self.width - 1) as f32);
+        let y = v.clamp(0.0, (self.height - 1) as f32);
+        let (x0, y0) = (x as usize, y as usize);
+        let (x1, y1) = ((x0 + 1).min(self.width - 1), (y0 + 1).min(self.height - 1));
+        let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+        let at = |xx: usize, yy: usize| self.values[yy * self.width + xx];
+        (at(x0, y0) * (1.0 - fx) + at(x1, y0) * fx) * (1.0 - fy)
+            + (at(x0, y1) * (1.0 - fx) + at(x1, y1) * fx) * fy
+    }
 }
 
 impl Light {
@@ -84,6 +149,7 @@ impl Light {
         Light {
             u: Profile::new(&vec![level; width as usize], blur),
             v: Profile::new(&vec![1.0; height as usize], blur),
+            mask: None,
         }
     }
 
@@ -92,6 +158,7 @@ impl Light {
         Light {
             u: Profile::new(cols, blur),
             v: Profile::new(&vec![1.0; height as usize], blur),
+            mask: None,
         }
     }
 
@@ -100,13 +167,24 @@ impl Light {
         Light {
             u: Profile::new(&vec![1.0; width as usize], blur),
             v: Profile::new(rows, blur),
+            mask: None,
         }
+    }
+
+    /// This light multiplied by a projection mask, blurred by `blur` pixels.
+    pub fn masked(mut self, mask: &ProjectionMask, blur: f32) -> Light {
+        self.mask = Some(std::sync::Arc::new(BlurredMask::new(mask, blur)));
+        self
     }
 
     /// Light at projector coordinate (u, v).
     #[inline]
     pub fn sample(&self, u: f32, v: f32) -> f32 {
-        self.u.sample(u) * self.v.sample(v)
+        let stripes = self.u.sample(u) * self.v.sample(v);
+        match &self.mask {
+            None => stripes,
+            Some(m) => stripes * m.sample(u, v),
+        }
     }
 }
 
@@ -126,5 +204,23 @@ mod tests {
             "antisymmetric about the edge"
         );
         assert_eq!(l.sample(25.0, 5.0), 0.0, "dark outside the projector");
+    }
+
+    #[test]
+    fn mask_scales_the_light_where_it_is_smooth() {
+        let mut cols = vec![0.0f32; 40];
+        cols[20..].fill(1.0);
+        let plain = Light::columns(&cols, 30, 0.6);
+        let mut mask = ProjectionMask::uniform(40, 30, 1.0);
+        for v in &mut mask.values[15 * 40..] {
+            *v = 0.25;
+        }
+        let masked = Light::columns(&cols, 30, 0.6).masked(&mask, 0.6);
+        for u in [5.0, 19.2, 19.5, 25.0] {
+            assert!((masked.sample(u, 5.0) - plain.sample(u, 5.0)).abs() < 1e-4);
+            assert!((masked.sample(u, 25.0) - 0.25 * plain.sample(u, 25.0)).abs() < 1e-4);
+        }
+        let edge = masked.sample(30.0, 14.5);
+        assert!(edge > 0.25 && edge < 1.0, "blurred mask edge {edge}");
     }
 }

@@ -23,7 +23,7 @@ use std::path::{Path, PathBuf};
 use crate::capture::CaptureSet;
 use crate::image::GrayImage;
 use crate::io::{create_dir, npy, write_toml};
-use crate::pattern::{CodeAxis, CodeLayout, Pattern};
+use crate::pattern::{CodeAxis, CodeLayout, Pattern, ProjectionMask};
 use crate::sensor::{ProjectorSection, ReferenceSection, SensorFile};
 use crate::{Error, Result};
 
@@ -75,16 +75,29 @@ impl Simulator {
 
     /// Render the camera frame of `pattern`; `frame` seeds the noise.
     pub fn frame(&self, layout: &CodeLayout, pattern: Pattern, frame: u64) -> GrayImage {
+        self.frame_with(layout, pattern, None, 1.0, frame)
+    }
+
+    /// Render the camera frame of `pattern` multiplied by `mask`, at `exposure` times the
+    /// scene's exposure; `frame` seeds the noise.
+    pub fn frame_with(
+        &self,
+        layout: &CodeLayout,
+        pattern: Pattern,
+        mask: Option<&ProjectionMask>,
+        exposure: f64,
+        frame: u64,
+    ) -> GrayImage {
         let s = &self.scene;
         let seed = s.render.seed.wrapping_mul(0x2545_F491_4F6C_DD1D)
             ^ frame.wrapping_mul(0x9E37_79B9_7F4A_7C15);
-        let data = self.cache.render(
-            &self.light(layout, pattern),
-            s.exposure,
-            s.noise,
-            s.shot_noise,
-            seed,
-        );
+        let mut light = self.light(layout, pattern);
+        if let Some(m) = mask {
+            light = light.masked(m, s.blur as f32);
+        }
+        let data = self
+            .cache
+            .render(&light, s.exposure * exposure, s.noise, s.shot_noise, seed);
         GrayImage::from_u8(s.camera.width, s.camera.height, data)
     }
 

@@ -83,6 +83,15 @@ impl GrayImage {
         }
     }
 
+    /// The samples on the 8-bit scale (0..255, fractional for 16-bit images), so thresholds in
+    /// DN apply to either depth.
+    pub fn to_levels(&self) -> Vec<f32> {
+        match &self.pixels {
+            Pixels::U8(v) => v.iter().map(|&p| f32::from(p)).collect(),
+            Pixels::U16(v) => v.iter().map(|&p| f32::from(p) / 257.0).collect(),
+        }
+    }
+
     /// Sample at (x, y) as f32 (no bounds check beyond the slice's).
     pub fn get(&self, x: u32, y: u32) -> f32 {
         let i = (y * self.width + x) as usize;

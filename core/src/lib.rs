@@ -16,6 +16,7 @@ pub mod geometry;
 pub mod image;
 pub mod inspect;
 pub mod io;
+pub mod mask;
 pub mod mesh;
 pub mod pattern;
 pub mod register;

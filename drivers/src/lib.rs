@@ -6,6 +6,7 @@
 //! The [`sequence`] module drives one pair through a pattern sequence and proves that every
 //! frame it records belongs to the pattern it is filed under.
 
+pub mod adaptive;
 pub mod camera;
 pub mod clock;
 pub mod error;

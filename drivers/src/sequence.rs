@@ -476,31 +476,27 @@ fn content_failures(
     let (Some(&w), Some(&b)) = (index.get(&Pattern::White), index.get(&Pattern::Black)) else {
         return Vec::new();
     };
-    let (white, black) = (images[w].to_u16(), images[b].to_u16());
-    // 16-bit units: scale the DN threshold of 8-bit frames.
-    let scale = if images[w].bit_depth() == 8 {
-        257.0
-    } else {
-        1.0
-    };
-    let min = params.min_contrast * scale;
-    let valid: Vec<usize> = (0..white.len())
-        .filter(|&i| f32::from(white[i]) - f32::from(black[i]) >= min)
-        .collect();
-    if valid.len() * 1000 < white.len() {
+    let (white, black) = (images[w].to_levels(), images[b].to_levels());
+    let min = params.min_contrast;
+    let lit = |i: usize| white[i] - black[i] >= min;
+    if (0..white.len()).filter(|&i| lit(i)).count() * 1000 < white.len() {
         let reason = format!(
             "only {} of {} pixels see the projector (white − black ≥ {} DN): projector off, \
              covered, the camera looks elsewhere, or the white or black frame is wrong",
-            valid.len(),
+            (0..white.len()).filter(|&i| lit(i)).count(),
             white.len(),
             params.min_contrast
         );
         return vec![(w, reason.clone()), (b, reason)];
     }
-    let contrast: f64 = valid
-        .iter()
-        .map(|&i| f64::from(white[i]) - f64::from(black[i]))
-        .sum();
+    // Light conservation only holds where nothing clips: leave out saturated white pixels.
+    let valid: Vec<usize> = (0..white.len())
+        .filter(|&i| lit(i) && white[i] < 250.0)
+        .collect();
+    if valid.len() < 100 {
+        return Vec::new();
+    }
+    let contrast: f64 = valid.iter().map(|&i| f64::from(white[i] - black[i])).sum();
     let mut bad = Vec::new();
     let mut pairs = 0;
     for (&p, &i) in &index {
@@ -520,13 +516,10 @@ fn content_failures(
             continue;
         };
         pairs += 1;
-        let (a, c) = (images[i].to_u16(), images[j].to_u16());
+        let (a, c) = (images[i].to_levels(), images[j].to_levels());
         let err: f64 = valid
             .iter()
-            .map(|&k| {
-                (f64::from(a[k]) + f64::from(c[k]) - f64::from(white[k]) - f64::from(black[k]))
-                    .abs()
-            })
+            .map(|&k| f64::from(a[k] + c[k] - white[k] - black[k]).abs())
             .sum::<f64>()
             / contrast;
         if err > f64::from(params.max_pair_error) {

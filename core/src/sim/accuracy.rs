@@ -29,13 +29,26 @@ pub struct Accuracy {
 /// Compare `cloud` (organised: `pixels` set) with `truth`. A pixel counts as lit when all its
 /// sub-samples are lit (`lit_threshold` = 0.999 by default in callers).
 pub fn evaluate(cloud: &PointCloud, truth: &Truth, lit_threshold: f32) -> Accuracy {
-    let lit = |i: usize| truth.lit[i] >= lit_threshold && truth.xyz[i][0].is_finite();
+    evaluate_where(cloud, truth, lit_threshold, |_| true)
+}
+
+/// [`evaluate`] restricted to the camera pixels `keep` accepts (e.g. one material's).
+pub fn evaluate_where(
+    cloud: &PointCloud,
+    truth: &Truth,
+    lit_threshold: f32,
+    keep: impl Fn(usize) -> bool,
+) -> Accuracy {
+    let lit = |i: usize| truth.lit[i] >= lit_threshold && truth.xyz[i][0].is_finite() && keep(i);
     let lit_pixels = (0..truth.lit.len()).filter(|&i| lit(i)).count();
     let mut reconstructed_lit = 0;
     let (mut n, mut sum, mut sum2, mut outliers, mut max) =
         (0usize, 0.0f64, 0.0f64, 0usize, 0.0f64);
     for (p, &px) in cloud.points.iter().zip(&cloud.pixels) {
         let i = px as usize;
+        if !keep(i) {
+            continue;
+        }
         let t = truth.xyz[i];
         if !t[0].is_finite() {
             outliers += 1;

@@ -44,7 +44,11 @@ impl Simulator {
 
     /// The projector's output for `pattern` under `layout`, through the scene's defocus.
     pub fn light(&self, layout: &CodeLayout, pattern: Pattern) -> Light {
-        let blur = self.scene.blur as f32;
+        self.light_blurred(layout, pattern, self.scene.blur as f32)
+    }
+
+    /// The projector's output for `pattern` blurred by `blur` pixels.
+    fn light_blurred(&self, layout: &CodeLayout, pattern: Pattern, blur: f32) -> Light {
         let (w, h) = (layout.width, layout.height);
         match pattern {
             Pattern::White => Light::uniform(w, h, 1.0, blur),
@@ -91,13 +95,29 @@ impl Simulator {
         let s = &self.scene;
         let seed = s.render.seed.wrapping_mul(0x2545_F491_4F6C_DD1D)
             ^ frame.wrapping_mul(0x9E37_79B9_7F4A_7C15);
-        let mut light = self.light(layout, pattern);
-        if let Some(m) = mask {
-            light = light.masked(m, s.blur as f32);
-        }
-        let data = self
+        let blur = s.blur as f32;
+        let with_mask = |light: Light, sigma: f32| match mask {
+            Some(m) => light.masked(m, sigma),
+            None => light,
+        };
+        let light = with_mask(self.light_blurred(layout, pattern, blur), blur);
+        let bounce: Vec<Light> = self
             .cache
-            .render(&light, s.exposure * exposure, s.noise, s.shot_noise, seed);
+            .bounce_sigmas
+            .iter()
+            .map(|&sigma| {
+                let total = (blur * blur + sigma * sigma).sqrt();
+                with_mask(self.light_blurred(layout, pattern, total), total)
+            })
+            .collect();
+        let data = self.cache.render(
+            &light,
+            &bounce,
+            s.exposure * exposure,
+            s.noise,
+            s.shot_noise,
+            seed,
+        );
         GrayImage::from_u8(s.camera.width, s.camera.height, data)
     }
 

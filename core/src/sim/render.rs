@@ -12,12 +12,23 @@ use super::scene::Scene;
 use crate::geometry::Vec3;
 
 /// One directly lit camera sub-sample: where it sits in the projector, and its weight
-/// (albedo × irradiance / sub-samples per pixel).
+/// ((albedo × cos + Blinn-Phong lobe) × irradiance falloff / sub-samples per pixel).
 #[derive(Clone, Copy, Debug)]
 struct LitSample {
     u: f32,
     v: f32,
     weight: f32,
+}
+
+/// Light a sub-sample receives from its lit neighbours (inter-reflection): the projector light
+/// around (u, v) blurred over the material's inter-reflection radius, times `weight` (the
+/// material's inter-reflection fraction times the sample's reflectance towards the camera).
+#[derive(Clone, Copy, Debug)]
+struct BounceSample {
+    u: f32,
+    v: f32,
+    weight: f32,
+    channel: u8,
 }
 
 /// Ground truth per camera pixel, from the ray through the pixel centre.
@@ -42,6 +53,10 @@ pub struct RenderCache {
     height: u32,
     offsets: Vec<u32>,
     samples: Vec<LitSample>,
+    bounce_offsets: Vec<u32>,
+    bounces: Vec<BounceSample>,
+    /// Inter-reflection blur (projector pixels) of each bounce channel.
+    pub bounce_sigmas: Vec<f32>,
     ambient: Vec<f32>,
     /// Ground truth.
     pub truth: Truth,
@@ -56,9 +71,22 @@ impl RenderCache {
         let oc = scene.camera.center();
         let op = scene.projector.center();
         let d0 = op.norm().max(1e-9);
+        // One bounce channel per inter-reflecting material: its radius in projector pixels at
+        // the cell's standoff.
+        let fp = scene.projector.k[(0, 0)];
+        let mut channel_of = vec![None; scene.materials.len()];
+        let mut bounce_sigmas = Vec::new();
+        for (i, m) in scene.materials.iter().enumerate() {
+            if m.interreflection > 0.0 && bounce_sigmas.len() < 255 {
+                channel_of[i] = Some(bounce_sigmas.len() as u8);
+                bounce_sigmas.push((m.interreflection_radius * fp / d0).max(0.5) as f32);
+            }
+        }
         struct Row {
             counts: Vec<u32>,
             samples: Vec<LitSample>,
+            bounce_counts: Vec<u32>,
+            bounces: Vec<BounceSample>,
             ambient: Vec<f32>,
             xyz: Vec<[f32; 3]>,
             material: Vec<u8>,
@@ -70,6 +98,8 @@ impl RenderCache {
                 let mut row = Row {
                     counts: vec![0; w],
                     samples: Vec::new(),
+                    bounce_counts: vec![0; w],
+                    bounces: Vec::new(),
                     ambient: vec![0.0; w],
                     xyz: vec![[f32::NAN; 3]; w],
                     material: vec![255; w],
@@ -92,16 +122,40 @@ impl RenderCache {
                                 n = -n;
                             }
                             let albedo = scene.albedo(obj, &p);
+                            let material = scene.objects[obj].material;
+                            let mat = &scene.materials[material];
                             row.ambient[u] += (albedo * scene.ambient * inv_n) as f32;
-                            if let Some((pu, pv, irradiance)) = direct_light(scene, &p, &n, &op, d0)
-                            {
+                            if let Some(hit) = direct_light(scene, &p, &n, &op, d0) {
                                 lit_count += 1;
+                                let mut reflect = albedo * hit.cos;
+                                if mat.specular > 0.0 {
+                                    // Blinn-Phong: half vector between light and view.
+                                    let h = (hit.to_light - d).normalize();
+                                    reflect +=
+                                        mat.specular * n.dot(&h).max(0.0).powf(mat.shininess);
+                                }
                                 row.samples.push(LitSample {
-                                    u: pu as f32,
-                                    v: pv as f32,
-                                    weight: (albedo * irradiance * inv_n) as f32,
+                                    u: hit.u as f32,
+                                    v: hit.v as f32,
+                                    weight: (reflect * hit.falloff * inv_n) as f32,
                                 });
                                 row.counts[u] += 1;
+                                if let Some(channel) = channel_of[material] {
+                                    row.bounces.push(BounceSample {
+                                        u: hit.u as f32,
+                                        v: hit.v as f32,
+                                        // Re-scattered with the point's own reflectance
+                                        // towards the camera (lobe included): shiny parts
+                                        // pass bright neighbours' light on strongly.
+                                        weight: (reflect
+                                            * mat.interreflection
+                                            * hit.falloff
+                                            * inv_n)
+                                            as f32,
+                                        channel,
+                                    });
+                                    row.bounce_counts[u] += 1;
+                                }
                             }
                         }
                     }
@@ -121,6 +175,9 @@ impl RenderCache {
             height: h as u32,
             offsets: Vec::with_capacity(w * h + 1),
             samples: Vec::with_capacity(rows.iter().map(|r| r.samples.len()).sum()),
+            bounce_offsets: Vec::with_capacity(w * h + 1),
+            bounces: Vec::with_capacity(rows.iter().map(|r| r.bounces.len()).sum()),
+            bounce_sigmas,
             ambient: Vec::with_capacity(w * h),
             truth: Truth {
                 width: w as u32,
@@ -131,12 +188,18 @@ impl RenderCache {
             },
         };
         cache.offsets.push(0);
+        cache.bounce_offsets.push(0);
         for row in rows {
             for c in row.counts {
                 let last = *cache.offsets.last().unwrap_or(&0);
                 cache.offsets.push(last + c);
             }
+            for c in row.bounce_counts {
+                let last = *cache.bounce_offsets.last().unwrap_or(&0);
+                cache.bounce_offsets.push(last + c);
+            }
             cache.samples.extend(row.samples);
+            cache.bounces.extend(row.bounces);
             cache.ambient.extend(row.ambient);
             cache.truth.xyz.extend(row.xyz);
             cache.truth.material.extend(row.material);
@@ -145,11 +208,13 @@ impl RenderCache {
         cache
     }
 
-    /// Render one 8-bit frame of the projector showing `light`: signal = 255 × exposure ×
-    /// radiance, plus read and shot noise, rounded and clipped (saturation at 255).
+    /// Render one 8-bit frame of the projector showing `light` (and `bounce`, the same light
+    /// blurred by each of [`RenderCache::bounce_sigmas`]): signal = 255 × exposure × radiance,
+    /// plus read and shot noise, rounded and clipped (saturation at 255).
     pub fn render(
         &self,
         light: &Light,
+        bounce: &[Light],
         exposure: f64,
         noise: f64,
         shot_noise: f64,
@@ -167,6 +232,11 @@ impl RenderCache {
                 for s in &self.samples[self.offsets[i] as usize..self.offsets[i + 1] as usize] {
                     radiance += s.weight * light.sample(s.u, s.v);
                 }
+                let b = &self.bounces
+                    [self.bounce_offsets[i] as usize..self.bounce_offsets[i + 1] as usize];
+                for s in b {
+                    radiance += s.weight * bounce[s.channel as usize].sample(s.u, s.v);
+                }
                 let signal = f64::from(gain * radiance);
                 let sigma = (noise * noise + shot_noise * signal).sqrt();
                 let z: f64 = if sigma > 0.0 {
@@ -181,9 +251,22 @@ impl RenderCache {
     }
 }
 
+/// How the projector lights a surface point.
+struct DirectHit {
+    /// Projector coordinates.
+    u: f64,
+    v: f64,
+    /// Cosine of the incidence angle.
+    cos: f64,
+    /// Inverse-square falloff relative to the standoff.
+    falloff: f64,
+    /// Unit vector towards the projector.
+    to_light: Vec3,
+}
+
 /// Projector coordinate and irradiance at surface point `p` (normal `n`), or `None` when the
 /// projector does not reach it (behind, outside its image, self-shadowed or occluded).
-fn direct_light(scene: &Scene, p: &Vec3, n: &Vec3, op: &Vec3, d0: f64) -> Option<(f64, f64, f64)> {
+fn direct_light(scene: &Scene, p: &Vec3, n: &Vec3, op: &Vec3, d0: f64) -> Option<DirectHit> {
     let to_p = op - p;
     let dist = to_p.norm();
     let l = to_p / dist;
@@ -203,5 +286,11 @@ fn direct_light(scene: &Scene, p: &Vec3, n: &Vec3, op: &Vec3, d0: f64) -> Option
     if scene.intersect(&origin, &l, 0.0, dist - 2e-3).is_some() {
         return None;
     }
-    Some((pu, pv, cos * (d0 / dist).powi(2)))
+    Some(DirectHit {
+        u: pu,
+        v: pv,
+        cos,
+        falloff: (d0 / dist).powi(2),
+        to_light: l,
+    })
 }

@@ -326,8 +326,12 @@ impl Scene {
                     return Err(Error::invalid(ctx, f(field), format!("{v} must be ≥ 0")));
                 }
             }
-            if m.specular > 0.0 || m.interreflection > 0.0 {
-                tracing::warn!(material = %name, "specular and inter-reflection are not simulated yet; the material renders as Lambertian");
+            if m.interreflection > 0.0 && m.interreflection_radius <= 0.0 {
+                return Err(Error::invalid(
+                    ctx,
+                    f("interreflection_radius"),
+                    "must be positive when interreflection is set",
+                ));
             }
             let texture =
                 Texture::parse(m.texture.as_deref(), m.texture_amplitude, m.texture_period)
@@ -461,6 +465,25 @@ impl Scene {
             render: file.render.clone(),
             file,
         })
+    }
+
+    /// The same scene with every material replaced by a diffuse, untextured albedo of 0.7 and
+    /// painted markers removed: the part powder-sprayed, the reference of the completeness
+    /// experiment (Table 7.1). Material indices and names are kept.
+    pub fn sprayed(&self) -> Scene {
+        let mut s = self.clone();
+        for m in &mut s.materials {
+            m.albedo = 0.7;
+            m.specular = 0.0;
+            m.shininess = 0.0;
+            m.interreflection = 0.0;
+            m.interreflection_radius = 0.0;
+            m.texture = Texture::None;
+        }
+        for o in &mut s.objects {
+            o.markers = None;
+        }
+        s
     }
 
     /// The same cell with only its reference plane (z = 0): the scene's plane objects, or a

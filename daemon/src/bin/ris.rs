@@ -54,6 +54,23 @@ impl DecodeArgs {
 }
 
 #[derive(Subcommand)]
+enum ExperimentCommand {
+    /// Table 7.1: points per material of a sprayed reference, a naive scan and the adaptive
+    /// projection-mask scan, and the adaptive scan's error against truth.
+    Completeness {
+        /// Scene file.
+        #[arg(long)]
+        scene: PathBuf,
+        /// JSON on stdout instead of a table.
+        #[arg(long)]
+        json: bool,
+        /// Also write the clouds, the adaptive capture and completeness.json here.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+}
+
+#[derive(Subcommand)]
 enum CalibrateCommand {
     /// Each sensor's [to_common] from its measurement of a marker gauge (white 5 mm markers
     /// with CMM-measured centres); sensor files are written only when every sensor passes.
@@ -157,6 +174,9 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Experiments on simulated scenes.
+    #[command(subcommand)]
+    Experiment(ExperimentCommand),
     /// Calibration: the sensors' transforms into the cell frame.
     #[command(subcommand)]
     Calibrate(CalibrateCommand),
@@ -275,6 +295,14 @@ fn main() -> Result<()> {
             if report.verdict != "pass" {
                 // Distinct exit status for a failed part, so scripts can branch on the verdict.
                 std::process::exit(3);
+            }
+        }
+        Command::Experiment(ExperimentCommand::Completeness { scene, json, out }) => {
+            let c = commands::experiment::completeness(&scene, out.as_deref())?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&c)?);
+            } else {
+                commands::experiment::print_table(&c);
             }
         }
         Command::Calibrate(CalibrateCommand::Cell {

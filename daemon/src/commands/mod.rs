@@ -3,6 +3,7 @@
 pub mod calibrate;
 pub mod decode;
 pub mod demo;
+pub mod experiment;
 pub mod inspect;
 pub mod merge;
 pub mod patterns;

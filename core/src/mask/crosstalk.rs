@@ -2,6 +2,8 @@
 //! first guessed through the reference plane (Eq. 4.16), then measured by an advanced masked
 //! projection; and the mask built by carrying each camera pixel's desired level there.
 
+use rayon::prelude::*;
+
 use super::field::{max_filter, min_filter, nearest_valid};
 use super::MaskParams;
 use crate::decode::Decoded;
@@ -123,67 +125,86 @@ impl MaskBuild {
     /// each way); where footprints overlap the smaller level wins (no pixel over-exposed).
     /// Projector pixels no camera pixel maps to stay 0.
     pub fn splat(map: &CodeMap, level: &[f32], pw: u32, ph: u32) -> ProjectionMask {
-        let (w, h) = (map.width as usize, map.height as usize);
-        let mut out = vec![f32::INFINITY; (pw * ph) as usize];
-        let at = |x: usize, y: usize| (map.u[y * w + x], map.v[y * w + x]);
-        for y in 0..h {
-            for x in 0..w {
-                let (u, v) = at(x, y);
-                let m = level[y * w + x];
-                if !(u.is_finite() && v.is_finite() && m.is_finite()) {
-                    continue;
-                }
-                let mut hu = 0.5f32;
-                let mut hv = 0.5f32;
-                for (nx, ny) in [(x + 1, y), (x, y + 1)] {
-                    if nx < w && ny < h {
-                        let (nu, nv) = at(nx, ny);
-                        if nu.is_finite() && nv.is_finite() {
-                            hu = hu.max(0.5 * (nu - u).abs() + 0.5);
-                            hv = hv.max(0.5 * (nv - v).abs() + 0.5);
-                        }
-                    }
-                }
-                let (hu, hv) = (hu.min(3.0), hv.min(3.0));
-                let u0 = (u - hu).round().max(0.0) as i64;
-                let u1 = ((u + hu).round() as i64).min(i64::from(pw) - 1);
-                let v0 = (v - hv).round().max(0.0) as i64;
-                let v1 = ((v + hv).round() as i64).min(i64::from(ph) - 1);
-                for pv in v0..=v1 {
-                    for pu in u0..=u1 {
-                        let c = &mut out[pv as usize * pw as usize + pu as usize];
-                        *c = c.min(m);
-                    }
-                }
-            }
-        }
-        for c in &mut out {
-            if !c.is_finite() {
-                *c = 0.0;
-            }
-        }
-        ProjectionMask {
-            width: pw,
-            height: ph,
-            values: out,
-        }
+        Self::splat_into(map, level, pw, ph, 0.0)
     }
 
     /// Like [`MaskBuild::splat`], but projector pixels no camera pixel maps to stay 1, so that
     /// a following erosion spreads only the levels that were placed.
     pub fn splat_min(map: &CodeMap, level: &[f32], pw: u32, ph: u32) -> ProjectionMask {
-        let any: Vec<f32> = level
-            .iter()
-            .map(|l| if l.is_finite() { 1.0 } else { f32::NAN })
+        Self::splat_into(map, level, pw, ph, 1.0)
+    }
+
+    fn splat_into(map: &CodeMap, level: &[f32], pw: u32, ph: u32, empty: f32) -> ProjectionMask {
+        let (w, h) = (map.width as usize, map.height as usize);
+        let (pwu, phu) = (pw as usize, ph as usize);
+        // Camera rows in bands, each splatted into its own projector buffer, then combined.
+        let bands = rayon::current_num_threads().max(1);
+        let band = h.div_ceil(bands).max(1);
+        let partial: Vec<Vec<f32>> = (0..h.div_ceil(band))
+            .into_par_iter()
+            .map(|k| {
+                let mut out = vec![f32::INFINITY; pwu * phu];
+                for y in k * band..((k + 1) * band).min(h) {
+                    for x in 0..w {
+                        let i = y * w + x;
+                        let (u, v, m) = (map.u[i], map.v[i], level[i]);
+                        if !(u.is_finite() && v.is_finite() && m.is_finite()) {
+                            continue;
+                        }
+                        let (mut hu, mut hv) = (0.5f32, 0.5f32);
+                        for j in [i + 1, i + w] {
+                            if (j == i + 1 && x + 1 < w) || (j == i + w && y + 1 < h) {
+                                let (nu, nv) = (map.u[j], map.v[j]);
+                                if nu.is_finite() && nv.is_finite() {
+                                    hu = hu.max(0.5 * (nu - u).abs());
+                                    hv = hv.max(0.5 * (nv - v).abs());
+                                }
+                            }
+                        }
+                        let (hu, hv) = (hu.min(3.0), hv.min(3.0));
+                        // Projector pixels whose centres fall in the footprint (the nearest one
+                        // at least).
+                        let span = |c: f32, half: f32, n: usize| -> (usize, usize) {
+                            let lo = (c - half).ceil().max(0.0) as usize;
+                            let hi = ((c + half).floor().max(0.0) as usize).min(n - 1);
+                            if lo > hi {
+                                let r = (c.round().max(0.0) as usize).min(n - 1);
+                                (r, r)
+                            } else {
+                                (lo, hi)
+                            }
+                        };
+                        if u < -0.5 || v < -0.5 || u > pw as f32 - 0.5 || v > ph as f32 - 0.5 {
+                            continue;
+                        }
+                        let (u0, u1) = span(u, hu, pwu);
+                        let (v0, v1) = span(v, hv, phu);
+                        for pv in v0..=v1 {
+                            for c in &mut out[pv * pwu + u0..=pv * pwu + u1] {
+                                *c = c.min(m);
+                            }
+                        }
+                    }
+                }
+                out
+            })
             .collect();
-        let placed = MaskBuild::splat(map, &any, pw, ph);
-        let mut m = MaskBuild::splat(map, level, pw, ph);
-        for (v, p) in m.values.iter_mut().zip(&placed.values) {
-            if *p == 0.0 {
-                *v = 1.0;
+        let mut values = vec![f32::INFINITY; pwu * phu];
+        for p in partial {
+            for (a, b) in values.iter_mut().zip(p) {
+                *a = a.min(b);
             }
         }
-        m
+        for c in &mut values {
+            if !c.is_finite() {
+                *c = empty;
+            }
+        }
+        ProjectionMask {
+            width: pw,
+            height: ph,
+            values,
+        }
     }
 
     /// Grow the bright parts of `mask` by `radius` (the first guess is uncertain: give every

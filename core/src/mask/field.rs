@@ -22,119 +22,147 @@ fn separable(
         return values.to_vec();
     }
     let height = values.len() / width;
+    let mut scratch = Running::new(width.max(height), radius, identity);
     let mut tmp = vec![0.0; values.len()];
-    let mut line = Vec::new();
-    let mut out_line = Vec::new();
-    for y in 0..height {
-        line.clear();
-        line.extend_from_slice(&values[y * width..(y + 1) * width]);
-        running(&line, radius, op, identity, &mut out_line);
-        tmp[y * width..(y + 1) * width].copy_from_slice(&out_line);
+    for (src, dst) in values.chunks_exact(width).zip(tmp.chunks_exact_mut(width)) {
+        scratch.run(src, op, dst);
     }
     let mut out = vec![0.0; values.len()];
+    let mut column = vec![0.0; height];
+    let mut result = vec![0.0; height];
     for x in 0..width {
-        line.clear();
-        line.extend((0..height).map(|y| tmp[y * width + x]));
-        running(&line, radius, op, identity, &mut out_line);
-        for (y, v) in out_line.iter().enumerate() {
+        for (y, c) in column.iter_mut().enumerate() {
+            *c = tmp[y * width + x];
+        }
+        scratch.run(&column, op, &mut result);
+        for (y, v) in result.iter().enumerate() {
             out[y * width + x] = *v;
         }
     }
     out
 }
 
-/// 1-D running `op` over windows of 2r+1 (van Herk / Gil–Werman: block prefix and suffix).
-fn running(line: &[f32], r: usize, op: fn(f32, f32) -> f32, identity: f32, out: &mut Vec<f32>) {
-    let n = line.len();
-    let k = 2 * r + 1;
-    let padded = n + 2 * r;
-    let at = |i: usize| -> f32 {
-        if i < r || i >= r + n {
-            identity
-        } else {
-            line[i - r]
+/// Buffers of the 1-D running filter (van Herk / Gil–Werman: block prefix and suffix), reused
+/// across lines.
+struct Running {
+    r: usize,
+    identity: f32,
+    g: Vec<f32>,
+    h: Vec<f32>,
+}
+
+impl Running {
+    fn new(max_len: usize, r: usize, identity: f32) -> Running {
+        Running {
+            r,
+            identity,
+            g: vec![identity; max_len + 2 * r],
+            h: vec![identity; max_len + 2 * r],
         }
-    };
-    let mut g = vec![identity; padded];
-    let mut h = vec![identity; padded];
-    for i in 0..padded {
-        g[i] = if i % k == 0 {
-            at(i)
-        } else {
-            op(g[i - 1], at(i))
-        };
     }
-    for i in (0..padded).rev() {
-        h[i] = if i % k == k - 1 || i == padded - 1 {
-            at(i)
-        } else {
-            op(h[i + 1], at(i))
+
+    /// `out[x] = op` over `line[x − r ..= x + r]`.
+    fn run(&mut self, line: &[f32], op: fn(f32, f32) -> f32, out: &mut [f32]) {
+        let (n, r, id) = (line.len(), self.r, self.identity);
+        let k = 2 * r + 1;
+        let padded = n + 2 * r;
+        let at = |i: usize| -> f32 {
+            if i < r || i >= r + n {
+                id
+            } else {
+                line[i - r]
+            }
         };
+        let (g, h) = (&mut self.g[..padded], &mut self.h[..padded]);
+        for i in 0..padded {
+            g[i] = if i % k == 0 {
+                at(i)
+            } else {
+                op(g[i - 1], at(i))
+            };
+        }
+        for i in (0..padded).rev() {
+            h[i] = if i % k == k - 1 || i == padded - 1 {
+                at(i)
+            } else {
+                op(h[i + 1], at(i))
+            };
+        }
+        for (x, o) in out.iter_mut().enumerate().take(n) {
+            *o = op(h[x], g[x + 2 * r]);
+        }
     }
-    out.clear();
-    out.extend((0..n).map(|x| op(h[x], g[x + 2 * r])));
 }
 
 /// For every invalid cell of a `width`-wide grid, the index of a valid cell at most `radius`
-/// cells away (8-connected chamfer propagation, two raster passes), or `None`.
+/// cells away (8-connected chamfer propagation of source coordinates, two raster passes), or
+/// `None`.
 pub(crate) fn nearest_valid(valid: &[bool], width: usize, radius: u32) -> Vec<Option<u32>> {
+    const NONE: (i32, i32) = (i32::MIN / 4, i32::MIN / 4);
     let height = valid.len() / width;
-    let mut src: Vec<Option<u32>> = valid
-        .iter()
-        .enumerate()
-        .map(|(i, &v)| v.then_some(i as u32))
-        .collect();
-    let d2 = |i: usize, s: u32| {
-        let (x, y) = ((i % width) as i64, (i / width) as i64);
-        let (sx, sy) = ((s as usize % width) as i64, (s as usize / width) as i64);
-        (x - sx).pow(2) + (y - sy).pow(2)
-    };
-    let relax = |i: usize, j: usize, src: &mut [Option<u32>]| {
-        if let Some(s) = src[j] {
-            if src[i].is_none_or(|c| d2(i, s) < d2(i, c)) {
-                src[i] = Some(s);
-            }
-        }
-    };
+    let mut src: Vec<(i32, i32)> = Vec::with_capacity(valid.len());
     for y in 0..height {
         for x in 0..width {
-            let i = y * width + x;
-            if x > 0 {
-                relax(i, i - 1, &mut src);
-            }
-            if y > 0 {
-                relax(i, i - width, &mut src);
-                if x > 0 {
-                    relax(i, i - width - 1, &mut src);
-                }
-                if x + 1 < width {
-                    relax(i, i - width + 1, &mut src);
-                }
-            }
+            src.push(if valid[y * width + x] {
+                (x as i32, y as i32)
+            } else {
+                NONE
+            });
         }
     }
-    for y in (0..height).rev() {
-        for x in (0..width).rev() {
-            let i = y * width + x;
-            if x + 1 < width {
-                relax(i, i + 1, &mut src);
-            }
-            if y + 1 < height {
-                relax(i, i + width, &mut src);
-                if x + 1 < width {
-                    relax(i, i + width + 1, &mut src);
+    let d2 = |x: i32, y: i32, s: (i32, i32)| -> i64 {
+        let (dx, dy) = (i64::from(x - s.0), i64::from(y - s.1));
+        dx * dx + dy * dy
+    };
+    let mut pass = |ys: &mut dyn Iterator<Item = usize>, forward: bool| {
+        let offsets: [(i32, i32); 4] = if forward {
+            [(-1, 0), (-1, -1), (0, -1), (1, -1)]
+        } else {
+            [(1, 0), (1, 1), (0, 1), (-1, 1)]
+        };
+        for y in ys {
+            for k in 0..width {
+                let x = if forward { k } else { width - 1 - k };
+                let i = y * width + x;
+                let (xi, yi) = (x as i32, y as i32);
+                let mut best = src[i];
+                let mut best_d = if best == NONE {
+                    i64::MAX
+                } else {
+                    d2(xi, yi, best)
+                };
+                for (dx, dy) in offsets {
+                    let (nx, ny) = (xi + dx, yi + dy);
+                    if nx < 0 || ny < 0 || nx as usize >= width || ny as usize >= height {
+                        continue;
+                    }
+                    let s = src[ny as usize * width + nx as usize];
+                    if s != NONE {
+                        let d = d2(xi, yi, s);
+                        if d < best_d {
+                            best = s;
+                            best_d = d;
+                        }
+                    }
                 }
-                if x > 0 {
-                    relax(i, i + width - 1, &mut src);
-                }
+                src[i] = best;
             }
         }
-    }
+    };
+    pass(&mut (0..height), true);
+    pass(&mut (0..height).rev(), false);
     let r2 = i64::from(radius) * i64::from(radius);
-    src.iter()
-        .enumerate()
-        .map(|(i, s)| s.filter(|&s| d2(i, s) <= r2))
-        .collect()
+    let mut out = Vec::with_capacity(src.len());
+    for y in 0..height {
+        for x in 0..width {
+            let s = src[y * width + x];
+            out.push(
+                (s != NONE && d2(x as i32, y as i32, s) <= r2)
+                    .then(|| (s.1 as usize * width + s.0 as usize) as u32),
+            );
+        }
+    }
+    out
 }
 
 #[cfg(test)]

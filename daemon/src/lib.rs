@@ -4,5 +4,7 @@
 //! function in [`commands`] so tests can call it directly.
 
 pub mod commands;
+pub mod config;
 pub mod logging;
 pub mod progress;
+pub mod scan;

@@ -100,7 +100,8 @@ pub struct MaterialSection {
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ObjectSection {
-    /// plane, box, sphere, dome, cylinder or mesh.
+    /// plane, box, sphere, dome, cylinder, mesh or panel (a doubly curved sheet such as a
+    /// windshield; meshes and panels take `position`, `rotation_deg`, `scale`).
     pub shape: String,
     /// Material name.
     pub material: String,
@@ -128,6 +129,9 @@ pub struct ObjectSection {
     /// Mesh scale.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub scale: Option<f64>,
+    /// Panel curvatures (1/mm) along x and y: z = −(cx x² + cy y²) / 2 over `size` (x, y).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub curvature: Option<[f64; 2]>,
     /// Gauge file whose markers are painted on this object; centres are in the object's own
     /// frame and move with its pose.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -433,13 +437,34 @@ impl Scene {
                     mesh.transform(&r, scale, &position);
                     Shape::Mesh(Box::new(Bvh::new(mesh)))
                 }
+                "panel" => {
+                    let size = need3(o.size, "size")?;
+                    if size[0] <= 0.0 || size[1] <= 0.0 {
+                        return Err(Error::invalid(ctx, f("size"), "x and y must be positive"));
+                    }
+                    let [cx, cy] = o.curvature.unwrap_or([0.0, 0.0]);
+                    if !(cx.is_finite() && cy.is_finite()) {
+                        return Err(Error::invalid(ctx, f("curvature"), "must be finite"));
+                    }
+                    let (hx, hy) = (size[0] / 2.0, size[1] / 2.0);
+                    let cells = |len: f64| ((len / 4.0).ceil() as usize).clamp(1, 2000);
+                    let mut mesh = TriangleMesh::height_field(
+                        cells(size[0]),
+                        cells(size[1]),
+                        (-hx, hx),
+                        (-hy, hy),
+                        |x, y| -(cx * x * x + cy * y * y) / 2.0,
+                    );
+                    mesh.transform(&r, scale, &position);
+                    Shape::Mesh(Box::new(Bvh::new(mesh)))
+                }
                 other => {
                     return Err(Error::invalid(
                         ctx,
                         f("shape"),
                         format!(
-                            "unknown shape `{other}` (plane, box, sphere, dome, cylinder, mesh)"
-                        ),
+                        "unknown shape `{other}` (plane, box, sphere, dome, cylinder, mesh, panel)"
+                    ),
                     ))
                 }
             };

@@ -1,0 +1,126 @@
+//! `risd`: the RIS cell daemon. This build scans once (`--once`) and validates configurations
+//! (`--check-config`); the Zenoh service comes with its issue.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context, Result};
+use clap::Parser;
+use ris_daemon::config::{CellConfig, MOCK_CELL};
+use ris_daemon::scan;
+
+#[derive(Parser)]
+#[command(name = "risd", version, about = "RIS cell daemon")]
+struct Args {
+    /// Cell configuration (TOML); without it the built-in mock cell runs.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Validate FILE (syntax, fields, referenced files) and exit.
+    #[arg(long, value_name = "FILE")]
+    check_config: Option<PathBuf>,
+    /// Zenoh endpoint to listen on (replaces the file's).
+    #[arg(long)]
+    listen: Vec<String>,
+    /// Zenoh endpoint to connect to (replaces the file's).
+    #[arg(long)]
+    connect: Vec<String>,
+    /// Data directory (replaces the file's).
+    #[arg(long)]
+    data_dir: Option<PathBuf>,
+    /// Scan the cell once, write clouds under the data directory, print where, and exit.
+    #[arg(long)]
+    once: bool,
+}
+
+fn load(args: &Args) -> Result<CellConfig> {
+    let mut config = match &args.config {
+        Some(path) => CellConfig::load(path)?,
+        None => {
+            // The built-in mock cell: its scenes live beside its configuration.
+            let base = builtin_dir()?;
+            CellConfig::parse(MOCK_CELL, &base, "built-in mock cell")?
+        }
+    };
+    if !args.listen.is_empty() {
+        config.zenoh.listen = args.listen.clone();
+    }
+    if !args.connect.is_empty() {
+        config.zenoh.connect = args.connect.clone();
+    }
+    if let Some(d) = &args.data_dir {
+        config.storage.data_dir = d.clone();
+    }
+    Ok(config)
+}
+
+/// Where the built-in mock cell's scene files are: the source tree's `config/` (the binary is
+/// run from the repository) or `/usr/share/risd/config` when installed.
+fn builtin_dir() -> Result<PathBuf> {
+    let candidates = [
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config"),
+        PathBuf::from("/usr/share/risd/config"),
+    ];
+    candidates
+        .into_iter()
+        .find(|d| d.join("mock-cell").is_dir())
+        .context("the built-in mock cell's scenes (config/mock-cell/) are not installed")
+}
+
+fn main() -> Result<()> {
+    ris_daemon::logging::init("info");
+    let args = Args::parse();
+    if let Some(path) = &args.check_config {
+        let config = CellConfig::load(path)?;
+        config.check_files()?;
+        println!(
+            "{}: cell {:?}, {} sensors in {} exposure groups, {} parts: ok",
+            path.display(),
+            config.name,
+            config.sensors.len(),
+            config.exposure_groups().len(),
+            config.parts.len()
+        );
+        return Ok(());
+    }
+    let config = load(&args)?;
+    if config.workers.threads > 0 {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(config.workers.threads)
+            .build_global()
+            .context("setting up the compute pool")?;
+    }
+    if !args.once {
+        bail!("this risd build has no Zenoh service yet; run `risd --once` to scan the cell once");
+    }
+    config.check_files()?;
+    let data_dir = &config.storage.data_dir;
+    for name in scan::housekeeping(
+        data_dir,
+        config.storage.keep_scans,
+        config.storage.max_age_days,
+    )? {
+        tracing::info!(scan = %name, "removed");
+    }
+    tracing::info!(cell = %config.name, sensors = config.sensors.len(), "preparing the pairs");
+    let mut pairs = scan::prepare(&config, 1)?;
+    let id = scan::new_scan_id(0);
+    let (report, dir) = scan::run(
+        &config.name,
+        &mut pairs,
+        data_dir,
+        &id,
+        config.storage.keep_captures,
+        &|s| tracing::debug!(state = ?s, "scan state"),
+    )?;
+    for s in &report.sensors {
+        println!(
+            "{}: {} points (acquired {:.2}–{:.2} s, reconstructed {:.2}–{:.2} s)",
+            s.sensor, s.points, s.acquire.0, s.acquire.1, s.compute.0, s.compute.1
+        );
+    }
+    println!(
+        "scan {} of cell {}: {} merged points, {:.2} s of computation after the last frame, {:.1} s in all",
+        report.scan_id, report.cell, report.merged_points, report.compute_after_last_frame, report.total
+    );
+    println!("wrote {}", dir.display());
+    Ok(())
+}

@@ -1,0 +1,477 @@
+//! The cell configuration of `risd` (TOML): what the cell is, its sensor pairs, where scans go,
+//! how it talks Zenoh. Parsed with unknown keys refused, then validated into [`CellConfig`] with
+//! errors that name the file and the field.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use serde::Deserialize;
+
+/// `[cell]`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CellSection {
+    /// Cell name: the `<cell>` of every Zenoh key (letters, digits, `-`, `_`).
+    pub name: String,
+}
+
+/// `[zenoh]`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ZenohSection {
+    /// `peer` or `client`.
+    #[serde(default = "peer")]
+    pub mode: String,
+    /// Endpoints to listen on (e.g. `tcp/0.0.0.0:7447`).
+    #[serde(default)]
+    pub listen: Vec<String>,
+    /// Endpoints to connect to.
+    #[serde(default)]
+    pub connect: Vec<String>,
+}
+
+impl Default for ZenohSection {
+    fn default() -> Self {
+        ZenohSection {
+            mode: peer(),
+            listen: Vec::new(),
+            connect: Vec::new(),
+        }
+    }
+}
+
+/// `[storage]`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StorageSection {
+    /// Directory of the scans (one sub-directory per scan).
+    #[serde(default = "data_dir")]
+    pub data_dir: PathBuf,
+    /// Scans kept (oldest removed first); 0 keeps all.
+    #[serde(default = "fifty")]
+    pub keep_scans: u32,
+    /// Scans older than this many days are removed; 0 keeps them.
+    #[serde(default = "thirty")]
+    pub max_age_days: u32,
+    /// Also store each sensor's capture set.
+    #[serde(default)]
+    pub keep_captures: bool,
+}
+
+impl Default for StorageSection {
+    fn default() -> Self {
+        StorageSection {
+            data_dir: data_dir(),
+            keep_scans: fifty(),
+            max_age_days: thirty(),
+            keep_captures: false,
+        }
+    }
+}
+
+/// `[workers]`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WorkersSection {
+    /// Compute threads (decoding, reconstruction, merge); 0 = one per core.
+    #[serde(default)]
+    pub threads: usize,
+    /// Scans that may wait behind the running one; more are refused.
+    #[serde(default = "four")]
+    pub queue: usize,
+}
+
+impl Default for WorkersSection {
+    fn default() -> Self {
+        WorkersSection {
+            threads: 0,
+            queue: four(),
+        }
+    }
+}
+
+/// `[[sensor]]`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SensorSection {
+    /// Sensor name (`s1`): the key of its cloud.
+    pub name: String,
+    /// `mock` (simulated pair), `aravis` (GigE Vision) or `v4l2` (USB).
+    pub backend: String,
+    /// Camera device: id or IP (aravis), path (v4l2).
+    #[serde(default)]
+    pub device: Option<String>,
+    /// Monitor of the projector window.
+    #[serde(default)]
+    pub projector_monitor: Option<u32>,
+    /// Sensor file (camera, projector, reference, `[to_common]`); required except for `mock`.
+    #[serde(default)]
+    pub sensor_file: Option<PathBuf>,
+    /// Simulator scene of a `mock` pair (its sensor world frame).
+    #[serde(default)]
+    pub scene: Option<PathBuf>,
+    /// Sensor → cell transform of a `mock` pair (row-major 4×4); others take it from the
+    /// sensor file.
+    #[serde(default)]
+    pub to_common: Option<[[f64; 4]; 4]>,
+    /// Pairs in the same group project at the same time (their projections do not overlap);
+    /// groups take turns.
+    #[serde(default)]
+    pub exposure_group: u32,
+    /// Camera exposure, µs.
+    #[serde(default = "exposure")]
+    pub exposure_us: f64,
+}
+
+/// `[[part]]`: a part the cell inspects.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PartSection {
+    /// Part id named by scan requests.
+    pub id: String,
+    /// CAD model (binary or ASCII STL), cell frame.
+    pub cad: PathBuf,
+    /// Datum regions (`[[datum]] name, position, radius`).
+    #[serde(default)]
+    pub datums: Option<PathBuf>,
+    /// Tolerance on |deviation|, mm.
+    pub tolerance: f64,
+}
+
+/// A cell configuration file.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CellFile {
+    /// The cell.
+    pub cell: CellSection,
+    /// Zenoh.
+    #[serde(default)]
+    pub zenoh: ZenohSection,
+    /// Storage.
+    #[serde(default)]
+    pub storage: StorageSection,
+    /// Compute workers.
+    #[serde(default)]
+    pub workers: WorkersSection,
+    /// Sensor pairs.
+    #[serde(default)]
+    pub sensor: Vec<SensorSection>,
+    /// Parts.
+    #[serde(default)]
+    pub part: Vec<PartSection>,
+}
+
+fn peer() -> String {
+    "peer".into()
+}
+fn data_dir() -> PathBuf {
+    PathBuf::from("/var/lib/risd")
+}
+fn fifty() -> u32 {
+    50
+}
+fn thirty() -> u32 {
+    30
+}
+fn four() -> usize {
+    4
+}
+fn exposure() -> f64 {
+    10_000.0
+}
+
+/// Which kind of pair a sensor is.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Backend {
+    /// Simulated pair rendering `scene`.
+    Mock {
+        /// The scene file.
+        scene: PathBuf,
+    },
+    /// GigE Vision camera.
+    Aravis,
+    /// V4L2 camera.
+    V4l2,
+}
+
+/// A validated sensor pair.
+#[derive(Clone, Debug)]
+pub struct SensorConfig {
+    /// Name.
+    pub name: String,
+    /// Backend.
+    pub backend: Backend,
+    /// Camera device.
+    pub device: Option<String>,
+    /// Projector monitor.
+    pub projector_monitor: Option<u32>,
+    /// Sensor file, resolved.
+    pub sensor_file: Option<PathBuf>,
+    /// Sensor → cell transform given in the cell file (mock pairs).
+    pub to_common: Option<nalgebra::Matrix4<f64>>,
+    /// Exposure group.
+    pub exposure_group: u32,
+    /// Exposure, µs.
+    pub exposure_us: f64,
+}
+
+/// A validated part.
+#[derive(Clone, Debug)]
+pub struct PartConfig {
+    /// Id.
+    pub id: String,
+    /// CAD, resolved.
+    pub cad: PathBuf,
+    /// Datums, resolved.
+    pub datums: Option<PathBuf>,
+    /// Tolerance, mm.
+    pub tolerance: f64,
+}
+
+/// A validated cell configuration, paths resolved against the file's directory.
+#[derive(Clone, Debug)]
+pub struct CellConfig {
+    /// Cell name.
+    pub name: String,
+    /// Zenoh settings.
+    pub zenoh: ZenohSection,
+    /// Storage settings (data dir resolved).
+    pub storage: StorageSection,
+    /// Workers.
+    pub workers: WorkersSection,
+    /// Sensor pairs in file order.
+    pub sensors: Vec<SensorConfig>,
+    /// Parts.
+    pub parts: Vec<PartConfig>,
+}
+
+/// The configuration of the built-in mock cell (`config/mock-cell.toml`).
+pub const MOCK_CELL: &str = include_str!("../../config/mock-cell.toml");
+
+impl CellConfig {
+    /// Read and validate a cell file.
+    pub fn load(path: &Path) -> Result<CellConfig> {
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        CellConfig::parse(&text, base, &path.display().to_string())
+    }
+
+    /// Parse and validate `text`; relative paths resolve against `base`, `ctx` names the source.
+    pub fn parse(text: &str, base: &Path, ctx: &str) -> Result<CellConfig> {
+        let file: CellFile = toml::from_str(text).map_err(|e| anyhow::anyhow!("{ctx}: {e}"))?;
+        let field = |f: &str, msg: String| anyhow::anyhow!("{ctx}: `{f}`: {msg}");
+        let name_ok = |s: &str| {
+            !s.is_empty()
+                && s.chars()
+                    .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+        };
+        if !name_ok(&file.cell.name) {
+            return Err(field(
+                "cell.name",
+                format!(
+                    "{:?} must be letters, digits, - or _ (it is a Zenoh key)",
+                    file.cell.name
+                ),
+            ));
+        }
+        if !matches!(file.zenoh.mode.as_str(), "peer" | "client") {
+            return Err(field(
+                "zenoh.mode",
+                format!("{:?} must be \"peer\" or \"client\"", file.zenoh.mode),
+            ));
+        }
+        for (k, list) in [
+            ("zenoh.listen", &file.zenoh.listen),
+            ("zenoh.connect", &file.zenoh.connect),
+        ] {
+            for e in list {
+                if !e.contains('/') {
+                    return Err(field(
+                        k,
+                        format!("{e:?} is not an endpoint like tcp/127.0.0.1:7447"),
+                    ));
+                }
+            }
+        }
+        if file.workers.queue == 0 {
+            return Err(field("workers.queue", "must be at least 1".into()));
+        }
+        if file.sensor.is_empty() {
+            return Err(field("sensor", "the cell has no [[sensor]]".into()));
+        }
+        let resolve = |p: &Path| {
+            if p.is_absolute() {
+                p.to_path_buf()
+            } else {
+                base.join(p)
+            }
+        };
+        let mut sensors: Vec<SensorConfig> = Vec::new();
+        for (i, s) in file.sensor.iter().enumerate() {
+            let f = |k: &str| format!("sensor[{i}].{k}");
+            if !name_ok(&s.name) {
+                return Err(field(
+                    &f("name"),
+                    format!("{:?} must be letters, digits, - or _", s.name),
+                ));
+            }
+            if sensors.iter().any(|o| o.name == s.name) {
+                return Err(field(&f("name"), format!("{:?} is used twice", s.name)));
+            }
+            if s.name == "merged" {
+                return Err(field(
+                    &f("name"),
+                    "\"merged\" names the merged cloud".into(),
+                ));
+            }
+            if !(s.exposure_us.is_finite() && s.exposure_us > 0.0) {
+                return Err(field(
+                    &f("exposure_us"),
+                    format!("{} must be positive", s.exposure_us),
+                ));
+            }
+            let backend = match s.backend.as_str() {
+                "mock" => Backend::Mock {
+                    scene: resolve(s.scene.as_deref().ok_or_else(|| {
+                        field(
+                            &f("scene"),
+                            "a mock pair needs the scene it simulates".into(),
+                        )
+                    })?),
+                },
+                "aravis" => Backend::Aravis,
+                "v4l2" => Backend::V4l2,
+                other => {
+                    return Err(field(
+                        &f("backend"),
+                        format!("{other:?} is not one of \"mock\", \"aravis\", \"v4l2\""),
+                    ))
+                }
+            };
+            if !matches!(backend, Backend::Mock { .. }) {
+                if s.sensor_file.is_none() {
+                    return Err(field(
+                        &f("sensor_file"),
+                        "a hardware pair needs its sensor file".into(),
+                    ));
+                }
+                if s.device.is_none() {
+                    return Err(field(
+                        &f("device"),
+                        "a hardware pair needs its camera device".into(),
+                    ));
+                }
+                if s.to_common.is_some() {
+                    return Err(field(
+                        &f("to_common"),
+                        "only mock pairs take it here; others read [to_common] from the sensor file".into(),
+                    ));
+                }
+            }
+            let to_common = match s.to_common {
+                None => None,
+                Some(m) => {
+                    let m = nalgebra::Matrix4::from_fn(|r, c| m[r][c]);
+                    let rot = m.fixed_view::<3, 3>(0, 0).into_owned();
+                    let ortho = (rot.transpose() * rot - nalgebra::Matrix3::identity()).norm();
+                    if !m.iter().all(|v| v.is_finite())
+                        || ortho > 1e-6
+                        || rot.determinant() < 0.0
+                        || (m.row(3) - nalgebra::RowVector4::new(0.0, 0.0, 0.0, 1.0)).norm() > 1e-9
+                    {
+                        return Err(field(
+                            &f("to_common"),
+                            "must be a rigid transform (proper rotation, last row 0 0 0 1)".into(),
+                        ));
+                    }
+                    Some(m)
+                }
+            };
+            sensors.push(SensorConfig {
+                name: s.name.clone(),
+                backend,
+                device: s.device.clone(),
+                projector_monitor: s.projector_monitor,
+                sensor_file: s.sensor_file.as_deref().map(resolve),
+                to_common,
+                exposure_group: s.exposure_group,
+                exposure_us: s.exposure_us,
+            });
+        }
+        let mut parts: Vec<PartConfig> = Vec::new();
+        for (i, p) in file.part.iter().enumerate() {
+            let f = |k: &str| format!("part[{i}].{k}");
+            if !name_ok(&p.id) {
+                return Err(field(
+                    &f("id"),
+                    format!("{:?} must be letters, digits, - or _", p.id),
+                ));
+            }
+            if parts.iter().any(|o| o.id == p.id) {
+                return Err(field(&f("id"), format!("{:?} is used twice", p.id)));
+            }
+            if !(p.tolerance.is_finite() && p.tolerance > 0.0) {
+                return Err(field(
+                    &f("tolerance"),
+                    format!("{} must be positive", p.tolerance),
+                ));
+            }
+            parts.push(PartConfig {
+                id: p.id.clone(),
+                cad: resolve(&p.cad),
+                datums: p.datums.as_deref().map(resolve),
+                tolerance: p.tolerance,
+            });
+        }
+        let mut storage = file.storage.clone();
+        storage.data_dir = resolve(&storage.data_dir);
+        Ok(CellConfig {
+            name: file.cell.name,
+            zenoh: file.zenoh,
+            storage,
+            workers: file.workers,
+            sensors,
+            parts,
+        })
+    }
+
+    /// The exposure groups in order, each with the indices of its sensors.
+    pub fn exposure_groups(&self) -> Vec<(u32, Vec<usize>)> {
+        let mut groups: std::collections::BTreeMap<u32, Vec<usize>> = Default::default();
+        for (i, s) in self.sensors.iter().enumerate() {
+            groups.entry(s.exposure_group).or_default().push(i);
+        }
+        groups.into_iter().collect()
+    }
+
+    /// Check that every referenced file exists and parses (scenes, sensor files, CAD, datums).
+    pub fn check_files(&self) -> Result<()> {
+        for s in &self.sensors {
+            if let Backend::Mock { scene } = &s.backend {
+                ris_core::sim::Scene::load(scene)
+                    .with_context(|| format!("sensor {}: scene", s.name))?;
+            }
+            if let Some(f) = &s.sensor_file {
+                let sensor = ris_core::sensor::Sensor::load(f)
+                    .with_context(|| format!("sensor {}: sensor file", s.name))?;
+                if sensor.to_common.is_none() && s.to_common.is_none() {
+                    bail!(
+                        "sensor {}: {} has no [to_common]; calibrate the cell (ris calibrate cell)",
+                        s.name,
+                        f.display()
+                    );
+                }
+            }
+        }
+        for p in &self.parts {
+            ris_core::mesh::TriangleMesh::load_stl(&p.cad)
+                .with_context(|| format!("part {}: CAD", p.id))?;
+            if let Some(d) = &p.datums {
+                ris_core::inspect::load_datums(d)
+                    .with_context(|| format!("part {}: datums", p.id))?;
+            }
+        }
+        Ok(())
+    }
+}

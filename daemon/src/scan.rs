@@ -1,0 +1,415 @@
+//! One scan of the cell: exposure groups take turns (pairs of a group project at the same
+//! time), each pair is sequenced on its own thread, and its capture is decoded and reconstructed
+//! on the compute pool while the next group acquires; the sensor clouds are merged into the
+//! cell frame. Results are written under a temporary name and renamed when complete, so a
+//! crash never leaves a scan that looks finished.
+
+use std::path::{Path, PathBuf};
+use std::sync::mpsc;
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{anyhow, Context, Result};
+use ris_core::capture::CaptureSet;
+use ris_core::cloud::{merge, PointCloud};
+use ris_core::decode::{decode, DecodeParams};
+use ris_core::pattern::CodeLayout;
+use ris_core::sensor::Reconstructor;
+use ris_core::sim::{Scene, Simulator};
+use ris_drivers::mock::{simulated_pair, FaultInjector, MockCamera, MockProjector};
+use ris_drivers::sequence::{acquire, SequenceParams};
+use ris_drivers::{Camera, Slide};
+use serde::Serialize;
+
+use crate::config::{Backend, CellConfig};
+
+/// Radius (mm) within which points of different sensors are duplicates in the merge.
+const MERGE_RADIUS: f64 = 0.5;
+
+/// A sensor pair ready to scan.
+pub struct Pair {
+    /// Sensor name.
+    pub name: String,
+    /// Exposure group.
+    pub group: u32,
+    camera: MockCamera,
+    projector: MockProjector,
+    /// Fault injection (mock pairs), for tests.
+    pub faults: FaultInjector,
+    layout: CodeLayout,
+    reconstructor: Arc<Reconstructor>,
+    to_common: nalgebra::Matrix4<f64>,
+}
+
+/// Progress of a scan, as the daemon publishes it.
+#[derive(Clone, Debug, Serialize)]
+#[serde(tag = "state", rename_all = "snake_case")]
+pub enum ScanState {
+    /// Waiting in the queue.
+    Queued,
+    /// A pair is acquiring.
+    Acquiring {
+        /// Sensor.
+        sensor: String,
+        /// Frames recorded.
+        frame: usize,
+        /// Frames of the sequence.
+        frames: usize,
+    },
+    /// A sensor's capture is being decoded and reconstructed.
+    Reconstructing {
+        /// Sensor.
+        sensor: String,
+    },
+    /// Sensor clouds are merged.
+    Merging,
+    /// Finished.
+    Done,
+    /// Failed.
+    Failed {
+        /// Why.
+        reason: String,
+    },
+}
+
+/// Seconds spent in each stage of one sensor.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct SensorTiming {
+    /// Sensor.
+    pub sensor: String,
+    /// Acquisition start and end, s since the scan started.
+    pub acquire: (f64, f64),
+    /// Decoding + reconstruction start and end, s since the scan started.
+    pub compute: (f64, f64),
+    /// Points reconstructed.
+    pub points: usize,
+}
+
+/// The result of a scan.
+#[derive(Clone, Debug, Serialize)]
+pub struct ScanReport {
+    /// Scan id.
+    pub scan_id: String,
+    /// Cell.
+    pub cell: String,
+    /// Per sensor.
+    pub sensors: Vec<SensorTiming>,
+    /// Merge start and end, s since the scan started.
+    pub merge: (f64, f64),
+    /// Points in the merged cloud.
+    pub merged_points: usize,
+    /// Compute time after the last frame, s.
+    pub compute_after_last_frame: f64,
+    /// Total, s.
+    pub total: f64,
+}
+
+/// Prepare every pair of `config`: for mock pairs, ray-cast the scene and record and fit the
+/// reference plane (a white board at the sensor's z = 0).
+pub fn prepare(config: &CellConfig, seed: u64) -> Result<Vec<Pair>> {
+    let mut pairs = Vec::new();
+    for s in &config.sensors {
+        let Backend::Mock { scene } = &s.backend else {
+            return Err(anyhow!(
+                "sensor {}: the {:?} backend is not built into this risd; only mock pairs run",
+                s.name,
+                s.backend
+            ));
+        };
+        let t = Instant::now();
+        let sc = Scene::load(scene).with_context(|| format!("sensor {}: scene", s.name))?;
+        let board = Simulator::new(sc.sprayed().reference());
+        let layout = board.layout();
+        let reference = decode(
+            &board.capture(&layout, 7, &|_, _| {}),
+            &DecodeParams::default(),
+        )
+        .with_context(|| format!("sensor {}: decoding the reference", s.name))?;
+        let reconstructor = Reconstructor::parallax(&sc.camera, sc.projector.center(), &reference)
+            .with_context(|| format!("sensor {}: parallax model", s.name))?;
+        let to_common = s
+            .to_common
+            .ok_or_else(|| anyhow!("sensor {}: no to_common", s.name))?;
+        let sim = Arc::new(Simulator::new(sc));
+        let (mut camera, projector, faults) = simulated_pair(sim, &s.name, seed);
+        camera
+            .set_exposure_us(s.exposure_us)
+            .with_context(|| format!("sensor {}: exposure", s.name))?;
+        tracing::info!(sensor = %s.name, seconds = t.elapsed().as_secs_f64(), "mock pair ready");
+        pairs.push(Pair {
+            name: s.name.clone(),
+            group: s.exposure_group,
+            camera,
+            projector,
+            faults,
+            layout,
+            reconstructor: Arc::new(reconstructor),
+            to_common,
+        });
+    }
+    Ok(pairs)
+}
+
+/// Scan with every pair and write the result into `<data_dir>/scans/<scan_id>`; `state` is
+/// told every stage. On failure nothing but the `.partial` directory is left, and it is
+/// removed.
+pub fn run(
+    cell: &str,
+    pairs: &mut [Pair],
+    data_dir: &Path,
+    scan_id: &str,
+    keep_captures: bool,
+    state: &(dyn Fn(&ScanState) + Sync),
+) -> Result<(ScanReport, PathBuf)> {
+    let scans = data_dir.join("scans");
+    std::fs::create_dir_all(&scans).with_context(|| format!("creating {}", scans.display()))?;
+    let dir = scans.join(scan_id);
+    let partial = scans.join(format!("{scan_id}.partial"));
+    if dir.exists() {
+        return Err(anyhow!(
+            "scan {scan_id} exists already in {}",
+            scans.display()
+        ));
+    }
+    std::fs::create_dir_all(&partial).with_context(|| format!("creating {}", partial.display()))?;
+    let result = scan_into(cell, pairs, &partial, scan_id, keep_captures, state);
+    match result {
+        Ok(report) => {
+            std::fs::rename(&partial, &dir)
+                .with_context(|| format!("finishing {}", dir.display()))?;
+            state(&ScanState::Done);
+            Ok((report, dir))
+        }
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(&partial);
+            state(&ScanState::Failed {
+                reason: format!("{e:#}"),
+            });
+            Err(e)
+        }
+    }
+}
+
+fn scan_into(
+    cell: &str,
+    pairs: &mut [Pair],
+    dir: &Path,
+    scan_id: &str,
+    keep_captures: bool,
+    state: &(dyn Fn(&ScanState) + Sync),
+) -> Result<ScanReport> {
+    let t0 = Instant::now();
+    let secs = move || t0.elapsed().as_secs_f64();
+    let mut groups: Vec<u32> = pairs.iter().map(|p| p.group).collect();
+    groups.sort_unstable();
+    groups.dedup();
+    let params = &SequenceParams::default();
+    // Captures go to the compute pool through a bounded channel; results come back here.
+    let (tx, rx) = mpsc::sync_channel::<(usize, CaptureSet)>(pairs.len().max(1));
+    let (done_tx, done_rx) = mpsc::channel::<(usize, Result<PointCloud>, f64, f64)>();
+    let recs: Vec<(String, Arc<Reconstructor>)> = pairs
+        .iter()
+        .map(|p| (p.name.clone(), p.reconstructor.clone()))
+        .collect();
+    let mut timings: Vec<SensorTiming> = pairs
+        .iter()
+        .map(|p| SensorTiming {
+            sensor: p.name.clone(),
+            ..Default::default()
+        })
+        .collect();
+    let mut last_frame = 0.0f64;
+    std::thread::scope(|scope| -> Result<()> {
+        let recs = &recs;
+        let worker = scope.spawn(move || {
+            for (i, capture) in rx {
+                let (name, rec) = &recs[i];
+                state(&ScanState::Reconstructing {
+                    sensor: name.clone(),
+                });
+                let c0 = secs();
+                let cloud = decode(&capture, &DecodeParams::default())
+                    .map_err(anyhow::Error::from)
+                    .and_then(|d| rec.reconstruct(&d).map_err(anyhow::Error::from))
+                    .with_context(|| format!("sensor {name}: reconstruction"));
+                if done_tx.send((i, cloud, c0, secs())).is_err() {
+                    break;
+                }
+            }
+        });
+        for g in &groups {
+            let mut results = Vec::new();
+            std::thread::scope(|inner| {
+                let handles: Vec<_> = pairs
+                    .iter_mut()
+                    .enumerate()
+                    .filter(|(_, p)| p.group == *g)
+                    .map(|(i, p)| {
+                        inner.spawn(move || {
+                            let slides: Vec<Slide> = p
+                                .layout
+                                .sequence(true)
+                                .into_iter()
+                                .map(Slide::plain)
+                                .collect();
+                            let a0 = secs();
+                            let name = p.name.clone();
+                            let acq = acquire(
+                                &mut p.camera,
+                                &mut p.projector,
+                                &p.layout,
+                                &slides,
+                                params,
+                                &mut |pr| {
+                                    state(&ScanState::Acquiring {
+                                        sensor: name.clone(),
+                                        frame: pr.done,
+                                        frames: pr.total,
+                                    })
+                                },
+                            )
+                            .with_context(|| format!("sensor {}: acquisition", p.name));
+                            (i, acq, a0, secs())
+                        })
+                    })
+                    .collect();
+                for h in handles {
+                    results.push(h.join());
+                }
+            });
+            for r in results {
+                let (i, acq, a0, a1) = r.map_err(|_| anyhow!("an acquisition thread panicked"))?;
+                let acq = acq?;
+                timings[i].acquire = (a0, a1);
+                last_frame = last_frame.max(a1);
+                if keep_captures {
+                    acq.capture
+                        .save(&dir.join("captures").join(&pairs[i].name))
+                        .with_context(|| format!("sensor {}: saving the capture", pairs[i].name))?;
+                }
+                tx.send((i, acq.capture))
+                    .map_err(|_| anyhow!("the compute worker stopped"))?;
+            }
+        }
+        drop(tx);
+        worker
+            .join()
+            .map_err(|_| anyhow!("the compute worker panicked"))?;
+        Ok(())
+    })?;
+    let mut clouds: Vec<Option<PointCloud>> = (0..pairs.len()).map(|_| None).collect();
+    for (i, cloud, c0, c1) in done_rx.try_iter() {
+        let cloud = cloud?;
+        timings[i].compute = (c0, c1);
+        timings[i].points = cloud.len();
+        cloud
+            .write_ply(&dir.join(format!("{}.ply", pairs[i].name)))
+            .with_context(|| format!("writing the cloud of {}", pairs[i].name))?;
+        clouds[i] = Some(cloud);
+    }
+    state(&ScanState::Merging);
+    let m0 = secs();
+    let inputs: Vec<(PointCloud, nalgebra::Matrix4<f64>)> = clouds
+        .into_iter()
+        .zip(pairs.iter())
+        .map(|(c, p)| {
+            c.map(|c| (c, p.to_common))
+                .ok_or_else(|| anyhow!("sensor {}: no cloud", p.name))
+        })
+        .collect::<Result<_>>()?;
+    let (merged, _) = merge(&inputs, MERGE_RADIUS);
+    merged
+        .write_ply(&dir.join("merged.ply"))
+        .context("writing the merged cloud")?;
+    let m1 = secs();
+    let report = ScanReport {
+        scan_id: scan_id.to_string(),
+        cell: cell.to_string(),
+        sensors: timings,
+        merge: (m0, m1),
+        merged_points: merged.len(),
+        compute_after_last_frame: m1 - last_frame,
+        total: secs(),
+    };
+    ris_core::io::write_atomic(
+        &dir.join("scan.json"),
+        serde_json::to_string_pretty(&report)?.as_bytes(),
+    )
+    .context("writing scan.json")?;
+    Ok(report)
+}
+
+/// Remove unfinished scans left by a crash (`*.partial`), and old scans beyond `keep` (0:
+/// all kept) or older than `max_age_days` (0: no limit). Returns the names removed.
+pub fn housekeeping(data_dir: &Path, keep: u32, max_age_days: u32) -> Result<Vec<String>> {
+    let scans = data_dir.join("scans");
+    let mut removed = Vec::new();
+    let Ok(entries) = std::fs::read_dir(&scans) else {
+        return Ok(removed);
+    };
+    let mut finished = Vec::new();
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let path = e.path();
+        if name.ends_with(".partial") {
+            std::fs::remove_dir_all(&path)
+                .with_context(|| format!("removing the unfinished scan {}", path.display()))?;
+            removed.push(name);
+        } else if path.join("scan.json").is_file() {
+            let modified = e.metadata().and_then(|m| m.modified()).ok();
+            finished.push((modified, name, path));
+        }
+    }
+    finished.sort_by_key(|f| std::cmp::Reverse(f.0));
+    let now = std::time::SystemTime::now();
+    for (k, (modified, name, path)) in finished.into_iter().enumerate() {
+        let too_many = keep > 0 && k >= keep as usize;
+        let too_old = max_age_days > 0
+            && modified
+                .and_then(|m| now.duration_since(m).ok())
+                .is_some_and(|age| age.as_secs() > u64::from(max_age_days) * 86_400);
+        if too_many || too_old {
+            std::fs::remove_dir_all(&path)
+                .with_context(|| format!("removing the old scan {}", path.display()))?;
+            removed.push(name);
+        }
+    }
+    Ok(removed)
+}
+
+/// A new scan id: UTC time to the millisecond plus a counter (`20261122T084921.028Z-0`), so
+/// ids sort by time.
+pub fn new_scan_id(counter: u64) -> String {
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap_or_default();
+    let secs = now.as_secs();
+    let (days, rem) = ((secs / 86_400) as i64, secs % 86_400);
+    // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!(
+        "{year:04}{month:02}{day:02}T{:02}{:02}{:02}.{:03}Z-{counter}",
+        rem / 3600,
+        rem / 60 % 60,
+        rem % 60,
+        now.subsec_millis()
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn scan_ids_are_utc_timestamps() {
+        let id = super::new_scan_id(3);
+        assert_eq!(id.len(), "20261122T084921.028Z-3".len(), "{id}");
+        assert!(id.starts_with("20") && id.ends_with("Z-3"), "{id}");
+    }
+}

@@ -1,0 +1,151 @@
+//! `risd`: configuration errors name the file and field, the reference configuration documents
+//! every key, and `--once` scans the built-in mock cell into a complete scan directory.
+
+use std::path::Path;
+use std::process::Command;
+
+use ris_daemon::config::CellConfig;
+
+fn config_dir() -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../config")
+}
+
+#[test]
+fn reference_and_mock_cell_configs_parse() {
+    let r = CellConfig::load(&config_dir().join("reference.toml")).expect("reference.toml");
+    assert_eq!(r.sensors.len(), 1);
+    assert_eq!(r.parts.len(), 1);
+    let m = CellConfig::load(&config_dir().join("mock-cell.toml")).expect("mock-cell.toml");
+    assert_eq!(m.name, "mock");
+    assert_eq!(m.sensors.len(), 4);
+    assert_eq!(m.exposure_groups().len(), 2);
+    m.check_files().expect("mock cell files");
+}
+
+#[test]
+fn config_errors_name_the_field() {
+    let base = config_dir();
+    let ok =
+        "[cell]\nname = \"c\"\n[[sensor]]\nname = \"s1\"\nbackend = \"mock\"\nscene = \"x.toml\"\n";
+    assert!(CellConfig::parse(ok, &base, "t.toml").is_ok());
+    for (text, needle) in [
+        ("[cell]\nname = \"bad name\"\n", "cell.name"),
+        ("[cell]\nname = \"c\"\ncolour = 1\n", "unknown field"),
+        ("[cell]\nname = \"c\"\n", "no [[sensor]]"),
+        (
+            "[cell]\nname = \"c\"\n[[sensor]]\nname = \"s1\"\nbackend = \"gige\"\n",
+            "sensor[0].backend",
+        ),
+        (
+            "[cell]\nname = \"c\"\n[[sensor]]\nname = \"s1\"\nbackend = \"aravis\"\ndevice = \"1.2.3.4\"\n",
+            "sensor[0].sensor_file",
+        ),
+        (
+            "[cell]\nname = \"c\"\n[[sensor]]\nname = \"s1\"\nbackend = \"mock\"\n",
+            "sensor[0].scene",
+        ),
+        (
+            &format!("{ok}[[sensor]]\nname = \"s1\"\nbackend = \"mock\"\nscene = \"y.toml\"\n"),
+            "sensor[1].name",
+        ),
+        (
+            &format!("{ok}exposure_us = -5.0\n"),
+            "sensor[0].exposure_us",
+        ),
+        (
+            &format!("{ok}to_common = [[2.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]\n"),
+            "sensor[0].to_common",
+        ),
+        ("[cell]\nname = \"c\"\n[zenoh]\nmode = \"router\"\n", "zenoh.mode"),
+        (
+            &format!("{ok}[[part]]\nid = \"p\"\ncad = \"p.stl\"\ntolerance = 0.0\n"),
+            "part[0].tolerance",
+        ),
+    ] {
+        let err = CellConfig::parse(text, &base, "t.toml").expect_err(text);
+        let msg = format!("{err:#}");
+        assert!(msg.contains("t.toml") && msg.contains(needle), "{needle}: {msg}");
+    }
+}
+
+#[test]
+fn check_config_reports_missing_files() {
+    let o = Command::new(env!("CARGO_BIN_EXE_risd"))
+        .args(["--check-config"])
+        .arg(config_dir().join("reference.toml"))
+        .env("RIS_LOG", "warn")
+        .output()
+        .expect("risd");
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("sensor s1") && err.contains("sensors/s1.toml"),
+        "{err}"
+    );
+}
+
+#[test]
+fn once_scans_the_builtin_mock_cell() {
+    let dir = tempfile::tempdir().expect("tmp");
+    // A crashed scan left behind must be cleaned up, never taken for a finished one.
+    let stale = dir.path().join("scans").join("123.partial");
+    std::fs::create_dir_all(&stale).expect("stale");
+    let o = Command::new(env!("CARGO_BIN_EXE_risd"))
+        .arg("--once")
+        .arg("--data-dir")
+        .arg(dir.path())
+        .env("RIS_LOG", "warn")
+        .output()
+        .expect("risd");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(!stale.exists(), "unfinished scan not removed");
+    let scans: Vec<_> = std::fs::read_dir(dir.path().join("scans"))
+        .expect("scans")
+        .flatten()
+        .map(|e| e.path())
+        .collect();
+    assert_eq!(scans.len(), 1, "{scans:?}");
+    let scan = &scans[0];
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(scan.join("scan.json")).expect("scan.json"))
+            .expect("json");
+    let mut total = 0;
+    for s in ["s1", "s2", "s3", "s4"] {
+        let c = ris_core::cloud::PointCloud::read_ply(&scan.join(format!("{s}.ply"))).expect(s);
+        assert!(c.len() > 200_000, "{s}: {} points", c.len());
+        total += c.len();
+    }
+    let merged = ris_core::cloud::PointCloud::read_ply(&scan.join("merged.ply")).expect("merged");
+    assert_eq!(report["merged_points"].as_u64(), Some(merged.len() as u64));
+    // The overlaps are de-duplicated, and the merged cloud lies on the panel in the cell frame:
+    // z = −x²/5000 − y²/8000 (the scenes' panel), within a fraction of a millimetre.
+    assert!(
+        merged.len() < total && merged.len() > total * 2 / 3,
+        "{} of {total}",
+        merged.len()
+    );
+    let off: Vec<f64> = merged
+        .points
+        .iter()
+        .map(|p| {
+            let (x, y, z) = (f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+            (z + x * x / 5000.0 + y * y / 8000.0).abs()
+        })
+        .collect();
+    let mean = off.iter().sum::<f64>() / off.len() as f64;
+    let far = off.iter().filter(|d| **d > 1.0).count() as f64 / off.len() as f64;
+    assert!(
+        mean < 0.1 && far < 0.002,
+        "mean {mean} mm, {far} beyond 1 mm"
+    );
+    // Exposure groups {s1, s3} and {s2, s4} take turns; compute overlaps the second group.
+    let t = |s: usize, k: &str, i: usize| report["sensors"][s][k][i].as_f64().expect("time");
+    assert!(
+        t(1, "acquire", 0) >= t(0, "acquire", 1) - 0.05,
+        "groups overlapped"
+    );
+    assert!(
+        t(0, "compute", 0) < t(1, "acquire", 1),
+        "no overlap of compute and acquisition"
+    );
+}

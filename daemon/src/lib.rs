@@ -6,5 +6,7 @@
 pub mod commands;
 pub mod config;
 pub mod logging;
+pub mod notify;
 pub mod progress;
 pub mod scan;
+pub mod service;

@@ -150,15 +150,18 @@ pub fn prepare(config: &CellConfig, seed: u64) -> Result<Vec<Pair>> {
     Ok(pairs)
 }
 
-/// Scan with every pair and write the result into `<data_dir>/scans/<scan_id>`; `state` is
-/// told every stage. On failure nothing but the `.partial` directory is left, and it is
-/// removed.
+/// Scan with every pair (or those named in `only`) and write the result into
+/// `<data_dir>/scans/<scan_id>`; `state` is told every stage; `cancelled` is asked between
+/// exposure groups. On failure the `.partial` directory is removed.
+#[allow(clippy::too_many_arguments)]
 pub fn run(
     cell: &str,
     pairs: &mut [Pair],
+    only: Option<&[String]>,
     data_dir: &Path,
     scan_id: &str,
     keep_captures: bool,
+    cancelled: &(dyn Fn() -> bool + Sync),
     state: &(dyn Fn(&ScanState) + Sync),
 ) -> Result<(ScanReport, PathBuf)> {
     let scans = data_dir.join("scans");
@@ -172,7 +175,20 @@ pub fn run(
         ));
     }
     std::fs::create_dir_all(&partial).with_context(|| format!("creating {}", partial.display()))?;
-    let result = scan_into(cell, pairs, &partial, scan_id, keep_captures, state);
+    let selected: Vec<bool> = pairs
+        .iter()
+        .map(|p| only.is_none_or(|names| names.contains(&p.name)))
+        .collect();
+    let result = scan_into(
+        cell,
+        pairs,
+        &selected,
+        &partial,
+        scan_id,
+        keep_captures,
+        cancelled,
+        state,
+    );
     match result {
         Ok(report) => {
             std::fs::rename(&partial, &dir)
@@ -190,17 +206,25 @@ pub fn run(
     }
 }
 
+#[allow(clippy::too_many_arguments)]
 fn scan_into(
     cell: &str,
     pairs: &mut [Pair],
+    selected: &[bool],
     dir: &Path,
     scan_id: &str,
     keep_captures: bool,
+    cancelled: &(dyn Fn() -> bool + Sync),
     state: &(dyn Fn(&ScanState) + Sync),
 ) -> Result<ScanReport> {
     let t0 = Instant::now();
     let secs = move || t0.elapsed().as_secs_f64();
-    let mut groups: Vec<u32> = pairs.iter().map(|p| p.group).collect();
+    let mut groups: Vec<u32> = pairs
+        .iter()
+        .zip(selected)
+        .filter(|(_, s)| **s)
+        .map(|(p, _)| p.group)
+        .collect();
     groups.sort_unstable();
     groups.dedup();
     let params = &SequenceParams::default();
@@ -238,12 +262,15 @@ fn scan_into(
             }
         });
         for g in &groups {
+            if cancelled() {
+                return Err(anyhow!("cancelled: risd is stopping"));
+            }
             let mut results = Vec::new();
             std::thread::scope(|inner| {
                 let handles: Vec<_> = pairs
                     .iter_mut()
                     .enumerate()
-                    .filter(|(_, p)| p.group == *g)
+                    .filter(|(i, p)| p.group == *g && selected[*i])
                     .map(|(i, p)| {
                         inner.spawn(move || {
                             let slides: Vec<Slide> = p
@@ -312,7 +339,9 @@ fn scan_into(
     let inputs: Vec<(PointCloud, nalgebra::Matrix4<f64>)> = clouds
         .into_iter()
         .zip(pairs.iter())
-        .map(|(c, p)| {
+        .zip(selected)
+        .filter(|(_, s)| **s)
+        .map(|((c, p), _)| {
             c.map(|c| (c, p.to_common))
                 .ok_or_else(|| anyhow!("sensor {}: no cloud", p.name))
         })
@@ -325,7 +354,12 @@ fn scan_into(
     let report = ScanReport {
         scan_id: scan_id.to_string(),
         cell: cell.to_string(),
-        sensors: timings,
+        sensors: timings
+            .into_iter()
+            .zip(selected)
+            .filter(|(_, s)| **s)
+            .map(|(t, _)| t)
+            .collect(),
         merge: (m0, m1),
         merged_points: merged.len(),
         compute_after_last_frame: m1 - last_frame,

@@ -149,3 +149,79 @@ fn once_scans_the_builtin_mock_cell() {
         "no overlap of compute and acquisition"
     );
 }
+
+#[test]
+fn a_fault_in_one_pair_fails_that_scan_and_the_next_succeeds() {
+    use ris_drivers::mock::Fault;
+    let config = CellConfig::load(&config_dir().join("mock-cell.toml")).expect("config");
+    let mut pairs = ris_daemon::scan::prepare(&config, 3).expect("pairs");
+    let data = tempfile::tempdir().expect("tmp");
+    // s2's camera ignores four triggers in a row: one slide exhausts its retries.
+    let s2 = pairs.iter().position(|p| p.name == "s2").expect("s2");
+    let at = pairs[s2].faults.exposures() + 5;
+    for k in 0..4 {
+        pairs[s2].faults.at(at + k, Fault::MissedTrigger);
+    }
+    let states = std::sync::Mutex::new(Vec::new());
+    let record = |s: &ris_daemon::scan::ScanState| {
+        if let Ok(mut v) = states.lock() {
+            v.push(serde_json::to_value(s).expect("json"));
+        }
+    };
+    let err = ris_daemon::scan::run(
+        "mock",
+        &mut pairs,
+        None,
+        data.path(),
+        "a",
+        false,
+        &|| false,
+        &record,
+    )
+    .expect_err("the scan must fail");
+    let msg = format!("{err:#}");
+    assert!(
+        msg.contains("sensor s2") && msg.contains("timeout"),
+        "{msg}"
+    );
+    let last = states
+        .lock()
+        .expect("states")
+        .last()
+        .cloned()
+        .expect("a state");
+    assert_eq!(last["state"], "failed");
+    assert!(
+        last["reason"].as_str().expect("reason").contains("s2"),
+        "{last}"
+    );
+    assert!(!data.path().join("scans/a").exists() && !data.path().join("scans/a.partial").exists());
+    let (report, dir) = ris_daemon::scan::run(
+        "mock",
+        &mut pairs,
+        None,
+        data.path(),
+        "b",
+        false,
+        &|| false,
+        &|_| {},
+    )
+    .expect("the next scan succeeds");
+    assert_eq!(report.sensors.len(), 4);
+    assert!(dir.join("merged.ply").is_file());
+    // A scan of a subset scans only those sensors.
+    let only = vec!["s3".to_string()];
+    let (report, _) = ris_daemon::scan::run(
+        "mock",
+        &mut pairs,
+        Some(&only),
+        data.path(),
+        "c",
+        false,
+        &|| false,
+        &|_| {},
+    )
+    .expect("subset scan");
+    assert_eq!(report.sensors.len(), 1);
+    assert_eq!(report.sensors[0].sensor, "s3");
+}

@@ -1,9 +1,9 @@
-//! `risd`: the RIS cell daemon. This build scans once (`--once`) and validates configurations
-//! (`--check-config`); the Zenoh service comes with its issue.
+//! `risd`: the RIS cell daemon. It serves scan requests over Zenoh (SPEC §12) until SIGTERM or
+//! SIGINT; `--once` scans the cell once and exits; `--check-config` validates a configuration.
 
 use std::path::PathBuf;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use clap::Parser;
 use ris_daemon::config::{CellConfig, MOCK_CELL};
 use ris_daemon::scan;
@@ -65,6 +65,34 @@ fn builtin_dir() -> Result<PathBuf> {
         .context("the built-in mock cell's scenes (config/mock-cell/) are not installed")
 }
 
+/// The service on tokio's multi-thread runtime (Zenoh needs it), stopped by SIGTERM or SIGINT.
+fn serve(config: CellConfig) -> Result<()> {
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    runtime.block_on(async move {
+        let shutdown = tokio_util::sync::CancellationToken::new();
+        let signals = shutdown.clone();
+        tokio::spawn(async move {
+            use tokio::signal::unix::{signal, SignalKind};
+            let (Ok(mut term), Ok(mut int)) = (
+                signal(SignalKind::terminate()),
+                signal(SignalKind::interrupt()),
+            ) else {
+                tracing::error!("cannot listen for SIGTERM/SIGINT");
+                return;
+            };
+            tokio::select! {
+                _ = term.recv() => tracing::info!("SIGTERM"),
+                _ = int.recv() => tracing::info!("SIGINT"),
+            }
+            signals.cancel();
+        });
+        ris_daemon::service::run(config, shutdown).await
+    })
+}
+
 fn main() -> Result<()> {
     ris_daemon::logging::init("info");
     let args = Args::parse();
@@ -88,10 +116,10 @@ fn main() -> Result<()> {
             .build_global()
             .context("setting up the compute pool")?;
     }
-    if !args.once {
-        bail!("this risd build has no Zenoh service yet; run `risd --once` to scan the cell once");
-    }
     config.check_files()?;
+    if !args.once {
+        return serve(config);
+    }
     let data_dir = &config.storage.data_dir;
     for name in scan::housekeeping(
         data_dir,
@@ -106,9 +134,11 @@ fn main() -> Result<()> {
     let (report, dir) = scan::run(
         &config.name,
         &mut pairs,
+        None,
         data_dir,
         &id,
         config.storage.keep_captures,
+        &|| false,
         &|s| tracing::debug!(state = ?s, "scan state"),
     )?;
     for s in &report.sensors {

@@ -1,0 +1,156 @@
+//! `risd` as a service on 127.0.0.1, driven by an independent Zenoh client (the eclipse-zenoh
+//! Python package, installed by `.ci/run`), then stopped with SIGTERM; and a `risd --once`
+//! killed with SIGKILL mid-scan, which must leave nothing that looks like a finished scan.
+
+use std::io::{BufRead, BufReader};
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+fn repo() -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .expect("a free port on 127.0.0.1")
+}
+
+fn signal(pid: u32, sig: &str) {
+    let ok = Command::new("kill")
+        .args([sig, &pid.to_string()])
+        .status()
+        .is_ok_and(|s| s.success());
+    assert!(ok, "kill {sig} {pid}");
+}
+
+#[test]
+fn independent_zenoh_client_scans_twice_then_sigterm_stops_cleanly() {
+    let have_client = Command::new("python3")
+        .args(["-c", "import zenoh"])
+        .status()
+        .is_ok_and(|s| s.success());
+    assert!(
+        have_client,
+        "the eclipse-zenoh Python package is missing: run .ci/run (it installs it), or pip install eclipse-zenoh"
+    );
+    let data = tempfile::tempdir().expect("tmp");
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let mut risd = Command::new(env!("CARGO_BIN_EXE_risd"))
+        .arg("--config")
+        .arg(repo().join("config/mock-cell.toml"))
+        .args(["--listen", &endpoint, "--data-dir"])
+        .arg(data.path())
+        .env("RIS_LOG", "info")
+        .env("NO_COLOR", "1")
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("risd");
+    let stderr = risd.stderr.take().expect("stderr");
+    let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+    let log = std::thread::spawn(move || {
+        let mut lines = Vec::new();
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            if line.contains("risd ready") {
+                let _ = ready_tx.send(());
+            }
+            lines.push(line);
+        }
+        lines
+    });
+    if ready_rx.recv_timeout(Duration::from_secs(120)).is_err() {
+        let _ = risd.kill();
+        panic!("risd never became ready: {:?}", log.join());
+    }
+    let client = Command::new("python3")
+        .arg(repo().join("tests/zenoh_client.py"))
+        .args([&endpoint, "mock", "s1", "s2", "s3", "s4"])
+        .output()
+        .expect("client");
+    let out = String::from_utf8_lossy(&client.stdout).into_owned();
+    eprintln!("{out}{}", String::from_utf8_lossy(&client.stderr));
+    let t = Instant::now();
+    signal(risd.id(), "-TERM");
+    let status = loop {
+        if let Some(s) = risd.try_wait().expect("wait") {
+            break s;
+        }
+        if t.elapsed() > Duration::from_secs(15) {
+            let _ = risd.kill();
+            panic!("risd did not stop within 15 s of SIGTERM");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let lines = log.join().expect("log");
+    assert!(
+        client.status.success(),
+        "client failed; risd log: {lines:#?}"
+    );
+    assert!(out.contains("1 passed, 0 failed"), "{out}");
+    assert!(status.success(), "risd exit {status:?}; log: {lines:#?}");
+    eprintln!(
+        "risd stopped {:.1} s after SIGTERM",
+        t.elapsed().as_secs_f64()
+    );
+    // Both scans are stored complete.
+    let scans: Vec<_> = std::fs::read_dir(data.path().join("scans"))
+        .expect("scans")
+        .flatten()
+        .collect();
+    assert_eq!(scans.len(), 2);
+    for s in scans {
+        for f in [
+            "s1.ply",
+            "s2.ply",
+            "s3.ply",
+            "s4.ply",
+            "merged.ply",
+            "scan.json",
+        ] {
+            assert!(
+                s.path().join(f).is_file(),
+                "{f} missing in {}",
+                s.path().display()
+            );
+        }
+    }
+}
+
+#[test]
+fn sigkill_mid_scan_leaves_no_scan_that_looks_complete() {
+    let data = tempfile::tempdir().expect("tmp");
+    let mut risd = Command::new(env!("CARGO_BIN_EXE_risd"))
+        .args(["--once", "--data-dir"])
+        .arg(data.path())
+        .env("RIS_LOG", "info")
+        .env("NO_COLOR", "1")
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("risd");
+    let stderr = risd.stderr.take().expect("stderr");
+    // Kill it while the first group is acquiring.
+    for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+        if line.contains("sequence recorded") {
+            break;
+        }
+    }
+    signal(risd.id(), "-KILL");
+    let _ = risd.wait();
+    let scans = data.path().join("scans");
+    let entries: Vec<String> = std::fs::read_dir(&scans)
+        .expect("scans")
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    for name in &entries {
+        assert!(
+            name.ends_with(".partial"),
+            "{name} looks finished after SIGKILL"
+        );
+    }
+    let removed = ris_daemon::scan::housekeeping(data.path(), 50, 30).expect("housekeeping");
+    assert_eq!(removed.len(), entries.len());
+    assert_eq!(std::fs::read_dir(&scans).expect("scans").count(), 0);
+}

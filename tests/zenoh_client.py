@@ -1,0 +1,94 @@
+#!/usr/bin/env python3
+"""An independent Zenoh client (eclipse-zenoh, not RIS code) driving a running risd:
+scan request -> scan_id, state publications ending in done, a binary-PLY cloud per sensor and
+merged, an error reply for a malformed request, a second scan, stored results queryable.
+
+Usage: zenoh_client.py ENDPOINT CELL SENSOR... ; exit status 0 when every check passed."""
+
+import json
+import sys
+import threading
+import time
+
+import zenoh
+
+
+def main():
+    endpoint, cell, sensors = sys.argv[1], sys.argv[2], sys.argv[3:]
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(conf)
+
+    lock = threading.Lock()
+    states, clouds = {}, {}
+
+    def on_sample(sample):
+        key = str(sample.key_expr)
+        parts = key.split("/")
+        with lock:
+            if parts[-1] == "state":
+                states.setdefault(parts[3], []).append(json.loads(sample.payload.to_bytes()))
+            elif parts[-2] == "cloud":
+                clouds.setdefault(parts[3], {})[parts[-1]] = sample.payload.to_bytes()
+
+    sub = session.declare_subscriber(f"ris/{cell}/scans/**", on_sample)
+
+    def ask(payload):
+        replies = list(session.get(f"ris/{cell}/scan", payload=payload, timeout=10.0))
+        assert len(replies) == 1, f"{len(replies)} replies"
+        r = replies[0]
+        if r.ok is not None:
+            return json.loads(r.ok.payload.to_bytes()), None
+        return None, r.err.payload.to_bytes().decode()
+
+    def wait_done(scan_id, timeout=120):
+        end = time.time() + timeout
+        while time.time() < end:
+            with lock:
+                seq = states.get(scan_id, [])
+                if seq and seq[-1]["state"] in ("done", "failed"):
+                    return seq
+            time.sleep(0.2)
+        raise AssertionError(f"scan {scan_id} did not finish: {states.get(scan_id)}")
+
+    ok, err = ask("{not json")
+    assert ok is None and "malformed" in err, (ok, err)
+    print("malformed request refused:", err)
+    ok, err = ask(json.dumps({"sensors": ["nope"]}))
+    assert ok is None and "nope" in err, (ok, err)
+
+    for n in range(2):
+        ok, err = ask(json.dumps({"tag": f"client test {n}"}))
+        assert err is None, err
+        assert ok["state"] == "accepted", ok
+        scan_id = ok["scan_id"]
+        seq = wait_done(scan_id)
+        names = [s["state"] for s in seq]
+        assert names[-1] == "done", seq[-1]
+        assert "acquiring" in names and "reconstructing" in names and "merging" in names, names
+        time.sleep(0.5)
+        with lock:
+            got = clouds.get(scan_id, {})
+        for s in sensors + ["merged"]:
+            assert s in got, f"no cloud {s} for {scan_id}: {sorted(got)}"
+            head = got[s][:200]
+            assert head.startswith(b"ply\nformat binary_little_endian"), head[:40]
+        print(f"scan {scan_id}: {len(seq)} states, clouds {sorted(got)}, "
+              f"{seq[-1].get('merged_points')} merged points, "
+              f"{seq[-1].get('compute_after_last_frame'):.2f} s compute after the last frame")
+
+    stored = list(session.get(f"ris/{cell}/scans/{scan_id}/cloud/merged", timeout=10.0))
+    assert len(stored) == 1 and stored[0].ok is not None, stored
+    assert stored[0].ok.payload.to_bytes().startswith(b"ply\n")
+    health = list(session.get(f"ris/{cell}/health", timeout=5.0))
+    assert health and health[0].ok is not None
+    print("health:", health[0].ok.payload.to_bytes().decode())
+    sub.undeclare()
+    session.close()
+    print("1 passed, 0 failed")
+
+
+if __name__ == "__main__":
+    main()

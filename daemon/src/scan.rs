@@ -347,6 +347,7 @@ fn scan_into(
         })
         .collect::<Result<_>>()?;
     let (merged, _) = merge(&inputs, MERGE_RADIUS);
+    tracing::info!(seconds = secs() - m0, points = merged.len(), "merged");
     merged
         .write_ply(&dir.join("merged.ply"))
         .context("writing the merged cloud")?;

@@ -15,34 +15,8 @@ fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
-/// A small scene (160x120 camera) so the CLI tests stay fast.
-const SCENE: &str = r#"
-[camera]
-width = 160
-height = 120
-k = [[190.0, 0.0, 79.5], [0.0, 190.0, 59.5], [0.0, 0.0, 1.0]]
-r = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]
-t = [0.0, 0.0, 1600.0]
-noise = 1.0
-[projector]
-width = 128
-height = 96
-k = [[150.0, 0.0, 63.5], [0.0, 150.0, 47.5], [0.0, 0.0, 1.0]]
-r = [[0.954479978035, 0.0, -0.298274993136], [0.0, -1.0, 0.0], [-0.298274993136, 0.0, -0.954479978035]]
-t = [0.0, 0.0, 1676.305461424]
-ambient = 0.02
-blur = 0.5
-[material.white]
-albedo = 0.7
-[[object]]
-shape = "plane"
-material = "white"
-[[object]]
-shape = "box"
-center = [0.0, 0.0, 50.0]
-size = [400.0, 300.0, 100.0]
-material = "white"
-"#;
+/// A tiny scene (160x120 camera) so the CLI tests stay fast.
+const SCENE: &str = include_str!("../../config/scenes/tiny.toml");
 
 fn simulated(dir: &Path) -> PathBuf {
     let scene = dir.join("scene.toml");

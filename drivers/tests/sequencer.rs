@@ -14,38 +14,11 @@ use ris_drivers::mock::{
 use ris_drivers::sequence::{acquire, Acquisition, SequenceError, SequenceParams};
 use ris_drivers::{Camera, ErrorKind, Projector, Slide, TriggerMode};
 
-const SCENE: &str = r#"
-[camera]
-width = 160
-height = 120
-k = [[190.0, 0.0, 79.5], [0.0, 190.0, 59.5], [0.0, 0.0, 1.0]]
-r = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]
-t = [0.0, 0.0, 1600.0]
-noise = 0.0
-[projector]
-width = 128
-height = 96
-k = [[150.0, 0.0, 63.5], [0.0, 150.0, 47.5], [0.0, 0.0, 1.0]]
-r = [[0.954479978035, 0.0, -0.298274993136], [0.0, -1.0, 0.0], [-0.298274993136, 0.0, -0.954479978035]]
-t = [0.0, 0.0, 1676.305461424]
-ambient = 0.02
-blur = 0.5
-[material.white]
-albedo = 0.7
-[[object]]
-shape = "plane"
-material = "white"
-[[object]]
-shape = "box"
-center = [0.0, 0.0, 50.0]
-size = [400.0, 300.0, 100.0]
-material = "white"
-[render]
-supersample = 2
-"#;
+const SCENE: &str = include_str!("../../config/scenes/tiny.toml");
 
 fn scene(noise: f64) -> Scene {
     let mut f: SceneFile = toml::from_str(SCENE).expect("scene");
+    f.render.supersample = 2;
     f.camera.noise = noise;
     f.camera.shot_noise = noise * 0.05;
     Scene::from_file(f, std::path::Path::new("."), "test scene").expect("scene")

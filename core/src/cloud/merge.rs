@@ -1,5 +1,7 @@
 //! Merging sensor clouds into the cell frame, de-duplicating where sensors overlap.
 
+use std::collections::HashSet;
+
 use rayon::prelude::*;
 
 use super::PointCloud;
@@ -40,16 +42,41 @@ pub fn merge(clouds: &[(PointCloud, Matrix4<f64>)], radius: f64) -> (PointCloud,
                 [v.x, v.y, v.z]
             })
             .collect();
-        // Existing points from earlier sensors near each new point.
-        let existing: Vec<[f64; 3]> = merged
+        // Existing points from earlier sensors near each new point. Only merged points in the
+        // coarse cells around this sensor's points can be within `radius`: the tree holds those.
+        let cell = (radius * 16.0).max(4.0);
+        let key = |p: &[f64; 3]| {
+            [
+                (p[0] / cell).floor() as i64,
+                (p[1] / cell).floor() as i64,
+                (p[2] / cell).floor() as i64,
+            ]
+        };
+        let mut around: HashSet<[i64; 3]> = HashSet::new();
+        let mut seen: HashSet<[i64; 3]> = HashSet::new();
+        for p in &pts {
+            let k = key(p);
+            if seen.insert(k) {
+                for dz in -1..=1 {
+                    for dy in -1..=1 {
+                        for dx in -1..=1 {
+                            around.insert([k[0] + dx, k[1] + dy, k[2] + dz]);
+                        }
+                    }
+                }
+            }
+        }
+        let (candidates, existing): (Vec<usize>, Vec<[f64; 3]>) = merged
             .points
             .iter()
-            .map(|p| [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])])
-            .collect();
+            .enumerate()
+            .map(|(j, p)| (j, [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])]))
+            .filter(|(_, p)| around.contains(&key(p)))
+            .unzip();
         let tree = KdTree::new(&existing);
         let near: Vec<Option<usize>> = pts
             .par_iter()
-            .map(|p| tree.nearest(p).filter(|&(_, d2)| d2 < r2).map(|(j, _)| j))
+            .map(|p| tree.nearest_within(p, r2).map(|(j, _)| candidates[j]))
             .collect();
         let mut replaced = vec![false; merged.len()];
         for (i, p) in pts.iter().enumerate() {

@@ -50,6 +50,16 @@ impl KdTree {
         Some((self.index[best.0] as usize, best.1))
     }
 
+    /// Nearest point to `q` closer than `sqrt(max_d2)`, pruning everything farther: cheap for
+    /// queries far from the points, which [`KdTree::nearest`] must search widely.
+    pub fn nearest_within(&self, q: &[f64; 3], max_d2: f64) -> Option<(usize, f64)> {
+        let mut best = (usize::MAX, max_d2);
+        if !self.points.is_empty() {
+            self.nearest_in(q, 0, self.points.len(), &mut best);
+        }
+        (best.0 != usize::MAX).then(|| (self.index[best.0] as usize, best.1))
+    }
+
     fn nearest_in(&self, q: &[f64; 3], lo: usize, hi: usize, best: &mut (usize, f64)) {
         if hi - lo <= LEAF {
             for i in lo..hi {
@@ -196,6 +206,14 @@ mod tests {
             let got: Vec<f64> = out.iter().map(|e| e.1).collect();
             let want: Vec<f64> = brute[..7].iter().map(|e| e.1).collect();
             assert_eq!(got, want);
+            for r2 in [brute[0].1 * 0.5, brute[0].1 * 2.0] {
+                let within = tree.nearest_within(&q, r2);
+                if brute[0].1 < r2 {
+                    assert_eq!(within.map(|w| w.1), Some(brute[0].1));
+                } else {
+                    assert!(within.is_none());
+                }
+            }
         }
         assert!(KdTree::new(&[]).nearest(&[0.0; 3]).is_none());
     }

@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use anyhow::{anyhow, Context, Result};
 use ris_core::capture::CaptureSet;
-use ris_core::cloud::{merge, PointCloud};
+use ris_core::cloud::Merger;
 use ris_core::decode::{decode, DecodeParams};
 use ris_core::pattern::CodeLayout;
 use ris_core::sensor::Reconstructor;
@@ -228,12 +228,12 @@ fn scan_into(
     groups.sort_unstable();
     groups.dedup();
     let params = &SequenceParams::default();
-    // Captures go to the compute pool through a bounded channel; results come back here.
+    // Captures go to the compute worker through a bounded channel; it decodes, reconstructs,
+    // writes and merges each sensor while the next group acquires.
     let (tx, rx) = mpsc::sync_channel::<(usize, CaptureSet)>(pairs.len().max(1));
-    let (done_tx, done_rx) = mpsc::channel::<(usize, Result<PointCloud>, f64, f64)>();
-    let recs: Vec<(String, Arc<Reconstructor>)> = pairs
+    let recs: Vec<(String, Arc<Reconstructor>, nalgebra::Matrix4<f64>)> = pairs
         .iter()
-        .map(|p| (p.name.clone(), p.reconstructor.clone()))
+        .map(|p| (p.name.clone(), p.reconstructor.clone(), p.to_common))
         .collect();
     let mut timings: Vec<SensorTiming> = pairs
         .iter()
@@ -243,11 +243,14 @@ fn scan_into(
         })
         .collect();
     let mut last_frame = 0.0f64;
-    std::thread::scope(|scope| -> Result<()> {
+    type Computed = (Merger, Vec<(usize, usize, f64, f64)>);
+    let computed: Computed = std::thread::scope(|scope| -> Result<Computed> {
         let recs = &recs;
-        let worker = scope.spawn(move || {
+        let worker = scope.spawn(move || -> Result<Computed> {
+            let mut merger = Merger::new(MERGE_RADIUS);
+            let mut done = Vec::new();
             for (i, capture) in rx {
-                let (name, rec) = &recs[i];
+                let (name, rec, to_common) = &recs[i];
                 state(&ScanState::Reconstructing {
                     sensor: name.clone(),
                 });
@@ -255,99 +258,95 @@ fn scan_into(
                 let cloud = decode(&capture, &DecodeParams::default())
                     .map_err(anyhow::Error::from)
                     .and_then(|d| rec.reconstruct(&d).map_err(anyhow::Error::from))
-                    .with_context(|| format!("sensor {name}: reconstruction"));
-                if done_tx.send((i, cloud, c0, secs())).is_err() {
-                    break;
-                }
+                    .with_context(|| format!("sensor {name}: reconstruction"))?;
+                cloud
+                    .write_ply(&dir.join(format!("{name}.ply")))
+                    .with_context(|| format!("writing the cloud of {name}"))?;
+                merger.add(&cloud, to_common);
+                done.push((i, cloud.len(), c0, secs()));
             }
+            Ok((merger, done))
         });
-        for g in &groups {
-            if cancelled() {
-                return Err(anyhow!("cancelled: risd is stopping"));
-            }
-            let mut results = Vec::new();
-            std::thread::scope(|inner| {
-                let handles: Vec<_> = pairs
-                    .iter_mut()
-                    .enumerate()
-                    .filter(|(i, p)| p.group == *g && selected[*i])
-                    .map(|(i, p)| {
-                        inner.spawn(move || {
-                            let slides: Vec<Slide> = p
-                                .layout
-                                .sequence(true)
-                                .into_iter()
-                                .map(Slide::plain)
-                                .collect();
-                            let a0 = secs();
-                            let name = p.name.clone();
-                            let acq = acquire(
-                                &mut p.camera,
-                                &mut p.projector,
-                                &p.layout,
-                                &slides,
-                                params,
-                                &mut |pr| {
-                                    state(&ScanState::Acquiring {
-                                        sensor: name.clone(),
-                                        frame: pr.done,
-                                        frames: pr.total,
-                                    })
-                                },
-                            )
-                            .with_context(|| format!("sensor {}: acquisition", p.name));
-                            (i, acq, a0, secs())
+        let acquired = (|| -> Result<()> {
+            for g in &groups {
+                if cancelled() {
+                    return Err(anyhow!("cancelled: risd is stopping"));
+                }
+                let mut results = Vec::new();
+                std::thread::scope(|inner| {
+                    let handles: Vec<_> = pairs
+                        .iter_mut()
+                        .enumerate()
+                        .filter(|(i, p)| p.group == *g && selected[*i])
+                        .map(|(i, p)| {
+                            inner.spawn(move || {
+                                let slides: Vec<Slide> = p
+                                    .layout
+                                    .sequence(true)
+                                    .into_iter()
+                                    .map(Slide::plain)
+                                    .collect();
+                                let a0 = secs();
+                                let name = p.name.clone();
+                                let acq = acquire(
+                                    &mut p.camera,
+                                    &mut p.projector,
+                                    &p.layout,
+                                    &slides,
+                                    params,
+                                    &mut |pr| {
+                                        state(&ScanState::Acquiring {
+                                            sensor: name.clone(),
+                                            frame: pr.done,
+                                            frames: pr.total,
+                                        })
+                                    },
+                                )
+                                .with_context(|| format!("sensor {}: acquisition", p.name));
+                                (i, acq, a0, secs())
+                            })
                         })
-                    })
-                    .collect();
-                for h in handles {
-                    results.push(h.join());
+                        .collect();
+                    for h in handles {
+                        results.push(h.join());
+                    }
+                });
+                for r in results {
+                    let (i, acq, a0, a1) =
+                        r.map_err(|_| anyhow!("an acquisition thread panicked"))?;
+                    let acq = acq?;
+                    timings[i].acquire = (a0, a1);
+                    last_frame = last_frame.max(a1);
+                    if keep_captures {
+                        acq.capture
+                            .save(&dir.join("captures").join(&pairs[i].name))
+                            .with_context(|| {
+                                format!("sensor {}: saving the capture", pairs[i].name)
+                            })?;
+                    }
+                    if tx.send((i, acq.capture)).is_err() {
+                        // The worker stopped on an error; it is reported below.
+                        return Ok(());
+                    }
                 }
-            });
-            for r in results {
-                let (i, acq, a0, a1) = r.map_err(|_| anyhow!("an acquisition thread panicked"))?;
-                let acq = acq?;
-                timings[i].acquire = (a0, a1);
-                last_frame = last_frame.max(a1);
-                if keep_captures {
-                    acq.capture
-                        .save(&dir.join("captures").join(&pairs[i].name))
-                        .with_context(|| format!("sensor {}: saving the capture", pairs[i].name))?;
-                }
-                tx.send((i, acq.capture))
-                    .map_err(|_| anyhow!("the compute worker stopped"))?;
             }
-        }
+            Ok(())
+        })();
         drop(tx);
-        worker
+        let computed = worker
             .join()
             .map_err(|_| anyhow!("the compute worker panicked"))?;
-        Ok(())
+        acquired?;
+        computed
     })?;
-    let mut clouds: Vec<Option<PointCloud>> = (0..pairs.len()).map(|_| None).collect();
-    for (i, cloud, c0, c1) in done_rx.try_iter() {
-        let cloud = cloud?;
+    let (merger, done) = computed;
+    for (i, points, c0, c1) in done {
         timings[i].compute = (c0, c1);
-        timings[i].points = cloud.len();
-        cloud
-            .write_ply(&dir.join(format!("{}.ply", pairs[i].name)))
-            .with_context(|| format!("writing the cloud of {}", pairs[i].name))?;
-        clouds[i] = Some(cloud);
+        timings[i].points = points;
     }
     state(&ScanState::Merging);
     let m0 = secs();
-    let inputs: Vec<(PointCloud, nalgebra::Matrix4<f64>)> = clouds
-        .into_iter()
-        .zip(pairs.iter())
-        .zip(selected)
-        .filter(|(_, s)| **s)
-        .map(|((c, p), _)| {
-            c.map(|c| (c, p.to_common))
-                .ok_or_else(|| anyhow!("sensor {}: no cloud", p.name))
-        })
-        .collect::<Result<_>>()?;
-    let (merged, _) = merge(&inputs, MERGE_RADIUS);
-    tracing::info!(seconds = secs() - m0, points = merged.len(), "merged");
+    let (merged, _) = merger.finish();
     merged
         .write_ply(&dir.join("merged.ply"))
         .context("writing the merged cloud")?;

@@ -21,14 +21,44 @@ pub struct MergeStats {
 /// `radius` (mm) to a point of another sensor is a duplicate: of the two, the more confident
 /// one stays. Points of one sensor never de-duplicate each other (one per camera pixel).
 pub fn merge(clouds: &[(PointCloud, Matrix4<f64>)], radius: f64) -> (PointCloud, MergeStats) {
-    let mut merged = PointCloud::default();
-    let mut owner: Vec<usize> = Vec::new();
-    let mut stats = MergeStats {
-        kept: vec![0; clouds.len()],
-        dropped: vec![0; clouds.len()],
-    };
-    let r2 = radius * radius;
-    for (s, (cloud, m)) in clouds.iter().enumerate() {
+    let mut merger = Merger::new(radius);
+    for (cloud, m) in clouds {
+        merger.add(cloud, m);
+    }
+    merger.finish()
+}
+
+/// An incremental [`merge`]: sensor clouds are added as they arrive (a scan merges one group
+/// while the next acquires), in the order of `add`.
+#[derive(Debug)]
+pub struct Merger {
+    merged: PointCloud,
+    owner: Vec<usize>,
+    stats: MergeStats,
+    radius: f64,
+}
+
+impl Merger {
+    /// An empty merge with duplicate radius `radius` (mm).
+    pub fn new(radius: f64) -> Merger {
+        Merger {
+            merged: PointCloud::default(),
+            owner: Vec::new(),
+            stats: MergeStats::default(),
+            radius,
+        }
+    }
+
+    /// Add the next sensor's cloud with its sensor → cell matrix.
+    pub fn add(&mut self, cloud: &PointCloud, m: &Matrix4<f64>) {
+        let s = self.stats.kept.len();
+        self.stats.kept.push(0);
+        self.stats.dropped.push(0);
+        let radius = self.radius;
+        let r2 = radius * radius;
+        let merged = &mut self.merged;
+        let owner = &mut self.owner;
+        let stats = &mut self.stats;
         let pts: Vec<[f64; 3]> = cloud
             .points
             .par_iter()
@@ -106,7 +136,11 @@ pub fn merge(clouds: &[(PointCloud, Matrix4<f64>)], radius: f64) -> (PointCloud,
             }
         }
     }
-    (merged, stats)
+
+    /// The merged cloud and the per-input figures.
+    pub fn finish(self) -> (PointCloud, MergeStats) {
+        (self.merged, self.stats)
+    }
 }
 
 #[cfg(test)]

@@ -3,7 +3,7 @@
 
 mod merge;
 
-pub use merge::{merge, MergeStats};
+pub use merge::{merge, MergeStats, Merger};
 
 use std::path::Path;
 

@@ -402,24 +402,24 @@ fn worker_loop(
     }
 }
 
-/// Answer `ris/<cell>/scans/**` from the finished scans on disk: `<id>/state`, `<id>/report`
-/// (the scan's JSON) and `<id>/cloud/<sensor>`, for every key the query matches.
-async fn handle_store(q: &Query, cell: &str, data_dir: &Path) {
-    let scans = data_dir.join("scans");
-    let Ok(entries) = std::fs::read_dir(&scans) else {
-        return;
+/// The stored results of finished scans: (key, file) for `<id>/report` (the scan's JSON) and
+/// `<id>/cloud/<sensor>`, and the ids. Blocking directory walk: run off the async runtime.
+fn stored_items(cell: &str, data_dir: &Path) -> (Vec<String>, Vec<(String, PathBuf)>) {
+    let mut ids = Vec::new();
+    let mut items = Vec::new();
+    let Ok(entries) = std::fs::read_dir(data_dir.join("scans")) else {
+        return (ids, items);
     };
-    let asked = q.key_expr().clone();
     for e in entries.flatten() {
         let id = e.file_name().to_string_lossy().into_owned();
         let dir: PathBuf = e.path();
         if id.ends_with(".partial") || !dir.join("scan.json").is_file() {
             continue;
         }
-        let mut items: Vec<(String, PathBuf)> = vec![(
+        items.push((
             format!("ris/{cell}/scans/{id}/report"),
             dir.join("scan.json"),
-        )];
+        ));
         if let Ok(files) = std::fs::read_dir(&dir) {
             for f in files.flatten() {
                 let name = f.file_name().to_string_lossy().into_owned();
@@ -428,29 +428,42 @@ async fn handle_store(q: &Query, cell: &str, data_dir: &Path) {
                 }
             }
         }
-        let state_key = format!("ris/{cell}/scans/{id}/state");
-        if let Ok(k) = zenoh::key_expr::KeyExpr::try_from(state_key.as_str()) {
-            if asked.intersects(&k) {
-                let _ = q.reply(k.clone(), r#"{"state":"done"}"#).await;
-            }
+        ids.push(id);
+    }
+    (ids, items)
+}
+
+/// Answer `ris/<cell>/scans/**` from the finished scans on disk: `<id>/state`, `<id>/report`
+/// and `<id>/cloud/<sensor>`, for every key the query matches.
+async fn handle_store(q: &Query, cell: &str, data_dir: &Path) {
+    let (c, d) = (cell.to_string(), data_dir.to_path_buf());
+    let Ok((ids, items)) = tokio::task::spawn_blocking(move || stored_items(&c, &d)).await else {
+        return;
+    };
+    let asked = q.key_expr().clone();
+    let matching = |key: &str| {
+        zenoh::key_expr::KeyExpr::try_from(key.to_string())
+            .ok()
+            .filter(|k| asked.intersects(k))
+    };
+    for id in ids {
+        if let Some(k) = matching(&format!("ris/{cell}/scans/{id}/state")) {
+            let _ = q.reply(k, r#"{"state":"done"}"#).await;
         }
-        for (key, path) in items {
-            let Ok(k) = zenoh::key_expr::KeyExpr::try_from(key.as_str()) else {
-                continue;
-            };
-            if !asked.intersects(&k) {
-                continue;
+    }
+    for (key, path) in items {
+        let Some(k) = matching(&key) else {
+            continue;
+        };
+        match tokio::fs::read(&path).await {
+            // Replies follow the query's congestion control.
+            Ok(bytes) => {
+                if let Err(err) = q.reply(k, bytes).await {
+                    tracing::warn!(%key, error = %err, "stored reply failed");
+                }
             }
-            match std::fs::read(&path) {
-                Ok(bytes) => {
-                    // Replies follow the query's congestion control.
-                    if let Err(err) = q.reply(k.clone(), bytes).await {
-                        tracing::warn!(%key, error = %err, "stored reply failed");
-                    }
-                }
-                Err(err) => {
-                    tracing::warn!(path = %path.display(), error = %err, "stored file unreadable")
-                }
+            Err(err) => {
+                tracing::warn!(path = %path.display(), error = %err, "stored file unreadable")
             }
         }
     }

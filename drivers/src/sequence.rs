@@ -479,11 +479,12 @@ fn content_failures(
     let (white, black) = (images[w].to_levels(), images[b].to_levels());
     let min = params.min_contrast;
     let lit = |i: usize| white[i] - black[i] >= min;
-    if (0..white.len()).filter(|&i| lit(i)).count() * 1000 < white.len() {
+    let lit_count = (0..white.len()).filter(|&i| lit(i)).count();
+    if lit_count * 1000 < white.len() {
         let reason = format!(
             "only {} of {} pixels see the projector (white − black ≥ {} DN): projector off, \
              covered, the camera looks elsewhere, or the white or black frame is wrong",
-            (0..white.len()).filter(|&i| lit(i)).count(),
+            lit_count,
             white.len(),
             params.min_contrast
         );

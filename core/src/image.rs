@@ -163,6 +163,45 @@ pub fn save_rgb_png(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<
     write_atomic(path, &buf)
 }
 
+/// Separable Gaussian blur of a row-major f32 image (σ in pixels, kernel ±3σ, edges clamped);
+/// rows run in parallel.
+pub fn gaussian_blur(data: &[f32], width: usize, height: usize, sigma: f32) -> Vec<f32> {
+    use rayon::prelude::*;
+    debug_assert_eq!(data.len(), width * height);
+    if sigma <= 0.0 || width == 0 || height == 0 {
+        return data.to_vec();
+    }
+    let r = (3.0 * sigma).ceil() as isize;
+    let mut kernel: Vec<f32> = (-r..=r)
+        .map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp())
+        .collect();
+    let sum: f32 = kernel.iter().sum();
+    kernel.iter_mut().for_each(|k| *k /= sum);
+    let clamp = |i: isize, n: usize| i.clamp(0, n as isize - 1) as usize;
+    let mut tmp = vec![0.0f32; data.len()];
+    tmp.par_chunks_mut(width)
+        .zip(data.par_chunks(width))
+        .for_each(|(out, row)| {
+            for (x, o) in out.iter_mut().enumerate() {
+                *o = kernel
+                    .iter()
+                    .enumerate()
+                    .map(|(k, w)| w * row[clamp(x as isize + k as isize - r, width)])
+                    .sum();
+            }
+        });
+    let mut out = vec![0.0f32; data.len()];
+    out.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
+        for (k, w) in kernel.iter().enumerate() {
+            let src = &tmp[clamp(y as isize + k as isize - r, height) * width..][..width];
+            for (o, s) in row.iter_mut().zip(src) {
+                *o += w * s;
+            }
+        }
+    });
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -218,5 +257,23 @@ mod tests {
         std::fs::write(&p, b"not a png").expect("write");
         let msg = GrayImage::load(&p).expect_err("must fail").to_string();
         assert!(msg.contains("broken.png"), "{msg}");
+    }
+
+    #[test]
+    fn gaussian_blur_preserves_mass_and_spreads_an_impulse() {
+        let (w, h) = (31, 21);
+        let mut img = vec![0.0f32; w * h];
+        img[10 * w + 15] = 100.0;
+        let out = gaussian_blur(&img, w, h, 2.0);
+        let total: f32 = out.iter().sum();
+        assert!((total - 100.0).abs() < 1e-3, "{total}");
+        // The centre keeps 1/(2πσ²) of the mass; the profile is symmetric.
+        let c = out[10 * w + 15];
+        assert!(
+            (c - 100.0 / (2.0 * std::f32::consts::PI * 4.0)).abs() < 0.05,
+            "{c}"
+        );
+        assert!((out[10 * w + 13] - out[10 * w + 17]).abs() < 1e-5);
+        assert!((out[8 * w + 15] - out[12 * w + 15]).abs() < 1e-5);
     }
 }

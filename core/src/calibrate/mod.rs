@@ -1,6 +1,7 @@
 //! Calibration (Ch. 3, Ch. 5.2.3): relating sensors to the cell frame with a marker gauge.
 
 mod cell;
+pub mod chessboard;
 mod gauge;
 
 pub use cell::{

@@ -640,3 +640,97 @@ rows = false
         "{json}"
     );
 }
+
+#[test]
+fn calibrate_camera_on_the_opencv_images_writes_intrinsics_and_names_bad_views() {
+    let data =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/opencv_chessboard_9x6");
+    let mut images: Vec<String> = (1..=14)
+        .filter(|n| *n != 10)
+        .map(|n| data.join(format!("left{n:02}.jpg")).display().to_string())
+        .collect();
+    let dir = tempfile::tempdir().expect("tempdir");
+    // A view without the board (the right camera sees it too, but a white frame does not).
+    let blank = dir.path().join("blank.png");
+    ris_core::image::GrayImage::from_u8(640, 480, vec![200; 640 * 480])
+        .save_png(&blank)
+        .expect("blank");
+    images.push(s(&blank).to_string());
+    let out = dir.path().join("camera.toml");
+    let mut args = vec![
+        "calibrate",
+        "camera",
+        "--board",
+        "9x6",
+        "--square",
+        "25",
+        "--out",
+        s(&out),
+    ];
+    args.extend(images.iter().map(String::as_str));
+    let o = ris(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        stdout.contains("RMS") && stdout.contains("blank.png"),
+        "{stdout}"
+    );
+    let cal = ris_core::calibrate::CameraCalibration::load(&out).expect("camera file");
+    assert!(
+        (cal.k[0][0] / 535.9157 - 1.0).abs() < 0.005,
+        "fx {}",
+        cal.k[0][0]
+    );
+    assert!(cal.rms > 0.0 && cal.rms <= 0.45, "rms {}", cal.rms);
+    assert_eq!(cal.views.len(), 13);
+    assert_eq!(cal.dropped.len(), 1);
+    assert!(
+        cal.dropped[0].image.ends_with("blank.png"),
+        "{:?}",
+        cal.dropped
+    );
+
+    // Wrong board size: nothing found, nothing written.
+    let bad = dir.path().join("bad.toml");
+    let mut args = vec![
+        "calibrate",
+        "camera",
+        "--board",
+        "9x7",
+        "--square",
+        "25",
+        "--out",
+        s(&bad),
+    ];
+    args.extend(images.iter().take(3).map(String::as_str));
+    fails(&args, &["9x7", "--board"], &bad);
+    fails(
+        &[
+            "calibrate",
+            "camera",
+            "--board",
+            "9",
+            "--square",
+            "25",
+            "--out",
+            s(&bad),
+            &images[0],
+        ],
+        &["--board", "COLSxROWS"],
+        &bad,
+    );
+    fails(
+        &[
+            "calibrate",
+            "camera",
+            "--board",
+            "9x6",
+            "--square=-1",
+            "--out",
+            s(&bad),
+            &images[0],
+        ],
+        &["--square", "positive"],
+        &bad,
+    );
+}

@@ -195,10 +195,27 @@ pub fn detect(
             ))
         }
     };
-    for p in corners.points.iter_mut().flatten() {
+    // The window follows the local square size: under perspective a board-wide size would
+    // reach the neighbouring corners where the squares are small.
+    let (cols, rows) = (board.cols as i64, board.rows as i64);
+    let coarse = corners.points.clone();
+    for (k, p) in corners.points.iter_mut().enumerate() {
+        let Some(p) = p else { continue };
+        let (i, j) = ((k % board.cols) as i64, (k / board.cols) as i64);
+        let local = [(1, 0), (-1, 0), (0, 1), (0, -1)]
+            .iter()
+            .filter_map(|&(di, dj)| {
+                let (ni, nj) = (i + di, j + dj);
+                if ni < 0 || nj < 0 || ni >= cols || nj >= rows {
+                    return None;
+                }
+                let q = coarse[(nj * cols + ni) as usize]?;
+                Some(((q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2)).sqrt())
+            })
+            .fold(grid.spacing, f64::min);
         let half = params
             .refine_half_window
-            .unwrap_or_else(|| ((0.4 * grid.spacing).round() as usize).clamp(2, 11));
+            .unwrap_or_else(|| ((0.4 * local).round() as usize).clamp(2, 11));
         if let Some(q) = refine(&img, p[0], p[1], half) {
             *p = q;
         }
@@ -765,7 +782,7 @@ mod tests {
             assert!(e < 0.05, "corner {p:?} is {e:.3} px from the truth");
         }
         // i runs with u; (i, j) has the handedness of (u, v).
-        let p = |i: usize, j: usize| corners.points[j * 9 + i].unwrap();
+        let p = |i: usize, j: usize| corners.points[j * 9 + i].expect("corner");
         assert!(p(8, 0)[0] > p(0, 0)[0]);
         let (di, dj) = (
             [p(8, 0)[0] - p(0, 0)[0], p(8, 0)[1] - p(0, 0)[1]],

@@ -72,6 +72,25 @@ enum ExperimentCommand {
 
 #[derive(Subcommand)]
 enum CalibrateCommand {
+    /// Camera intrinsics and Brown distortion from chessboard images (Zhang + Levenberg–Marquardt);
+    /// views failing the quality gate are named and dropped.
+    Camera {
+        /// Inner corners along x and y, e.g. 9x6.
+        #[arg(long)]
+        board: String,
+        /// Square size, mm.
+        #[arg(long)]
+        square: f64,
+        /// Keep fx = fy.
+        #[arg(long)]
+        fix_aspect: bool,
+        /// Chessboard images.
+        #[arg(required = true)]
+        images: Vec<PathBuf>,
+        /// Camera file to write (TOML).
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Each sensor's [to_common] from its measurement of a marker gauge (white 5 mm markers
     /// with CMM-measured centres); sensor files are written only when every sensor passes.
     Cell {
@@ -304,6 +323,15 @@ fn main() -> Result<()> {
             } else {
                 commands::experiment::print_table(&c);
             }
+        }
+        Command::Calibrate(CalibrateCommand::Camera {
+            board,
+            square,
+            fix_aspect,
+            images,
+            out,
+        }) => {
+            commands::calibrate::camera(&board, square, fix_aspect, &images, &out)?;
         }
         Command::Calibrate(CalibrateCommand::Cell {
             gauge,

@@ -1,14 +1,134 @@
-//! `ris calibrate`: relating sensors to the cell frame.
+//! `ris calibrate`: cameras from chessboard images, sensors to the cell frame.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use ris_core::calibrate::{fit_gauge, overlap_consistency, Gauge, GaugeFit, GaugeParams};
+use rayon::prelude::*;
+use ris_core::calibrate::chessboard::{detect, BoardSize, DetectParams};
+use ris_core::calibrate::{
+    calibrate_camera, fit_gauge, overlap_consistency, BoardView, CameraCalibration, CameraParams,
+    DroppedView, Gauge, GaugeFit, GaugeParams,
+};
 use ris_core::cloud::PointCloud;
+use ris_core::image::GrayImage;
 use ris_core::io::{read_toml, write_atomic};
 use ris_core::sensor::{SensorFile, ToCommonSection};
 
 use super::parse_sensor_cloud;
+
+/// `ris calibrate camera`: detect the board in every image (in parallel), calibrate, print the
+/// per-view and overall RMS and every dropped view, and write the camera file atomically.
+pub fn camera(
+    board: &str,
+    square: f64,
+    fix_aspect: bool,
+    images: &[PathBuf],
+    out: &Path,
+) -> Result<CameraCalibration> {
+    let size = BoardSize::parse(board).with_context(|| {
+        format!("--board {board:?}: expected inner corners as COLSxROWS, e.g. 9x6")
+    })?;
+    anyhow::ensure!(
+        square.is_finite() && square > 0.0,
+        "--square {square}: the square size must be a positive number of millimetres"
+    );
+    let bar = crate::progress::bar(images.len() as u64, "corners");
+    // Outer error: the image cannot be read (bad input, fatal); inner: no board in it (dropped).
+    type Detected = ris_core::Result<(GrayImage, Result<BoardView, String>)>;
+    let detected: Vec<Detected> = images
+        .par_iter()
+        .map(|path| {
+            let img = GrayImage::load(path)?;
+            let name = path.display().to_string();
+            let corners = detect(
+                &img.to_levels(),
+                img.width as usize,
+                img.height as usize,
+                size,
+                &DetectParams::default(),
+            );
+            bar.inc(1);
+            let view = corners
+                .map(|corners| BoardView { name, corners })
+                .map_err(|e| e.to_string());
+            Ok((img, view))
+        })
+        .collect();
+    bar.finish_and_clear();
+    let mut views = Vec::new();
+    let mut not_found = Vec::new();
+    let mut dims: Option<(u32, u32, PathBuf)> = None;
+    for (path, d) in images.iter().zip(detected) {
+        let (img, view) = d.with_context(|| format!("reading {}", path.display()))?;
+        match &dims {
+            None => dims = Some((img.width, img.height, path.clone())),
+            Some((w, h, first)) => anyhow::ensure!(
+                (*w, *h) == (img.width, img.height),
+                "{}: {}x{} differs from {} ({w}x{h}); one camera per calibration",
+                path.display(),
+                img.width,
+                img.height,
+                first.display()
+            ),
+        }
+        match view {
+            Ok(view) => {
+                println!(
+                    "{}: {}/{} corners{}",
+                    view.name,
+                    view.corners.found(),
+                    size.len(),
+                    if view.corners.found() < size.len() {
+                        format!(", missing {:?}", view.corners.missing())
+                    } else {
+                        String::new()
+                    }
+                );
+                views.push(view);
+            }
+            Err(reason) => {
+                println!("{}: {reason}", path.display());
+                not_found.push(DroppedView {
+                    image: path.display().to_string(),
+                    reason,
+                });
+            }
+        }
+    }
+    anyhow::ensure!(
+        !views.is_empty(),
+        "no image shows a {board} board (check --board: inner corners, not squares); nothing \
+         was written"
+    );
+    let (width, height, _) = dims.context("no images given")?;
+    let params = CameraParams {
+        fix_aspect,
+        ..CameraParams::default()
+    };
+    let mut cal = calibrate_camera(&views, square, width, height, &params)
+        .context("camera calibration failed; no file was written")?;
+    cal.dropped.splice(0..0, not_found);
+    for v in &cal.views {
+        println!("  {}: RMS {:.3} px", v.image, v.rms);
+    }
+    for d in &cal.dropped {
+        println!("  dropped {}: {}", d.image, d.reason);
+    }
+    println!(
+        "fx {:.2} fy {:.2} cx {:.2} cy {:.2} dist [{}]; RMS {:.3} px over {} views",
+        cal.k[0][0],
+        cal.k[1][1],
+        cal.k[0][2],
+        cal.k[1][2],
+        cal.dist.map(|d| format!("{d:.5}")).join(", "),
+        cal.rms,
+        cal.views.len()
+    );
+    cal.save(out)
+        .with_context(|| format!("writing {}", out.display()))?;
+    println!("wrote {}", out.display());
+    Ok(cal)
+}
 
 /// `ris calibrate cell`: fit every sensor's measurement of the marker gauge, and only when all
 /// of them pass, write each sensor file's `[to_common]` (atomically) and, if asked, a JSON

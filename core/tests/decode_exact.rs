@@ -78,6 +78,7 @@ fn plane_scene(
             seed: 7,
             rows: true,
         },
+        calibration: None,
     };
     Scene::from_file(file, std::path::Path::new("."), "test scene").expect("scene")
 }

@@ -6,6 +6,8 @@ pub mod chessboard;
 mod gauge;
 mod homography;
 mod lm;
+mod sensor;
+mod session;
 
 pub use camera::{
     calibrate_camera, BoardView, CameraCalibration, CameraParams, DroppedView, ViewResult,
@@ -17,3 +19,8 @@ pub use cell::{
 pub use gauge::{Gauge, GaugeFile, MarkerSection};
 pub use homography::{apply as apply_homography, homography};
 pub use lm::{minimize, LmReport};
+pub use sensor::{
+    calibrate_sensor, calibrate_sensor_with, ErrorStats, Gate, LayerReport, SensorCalibration,
+    SensorParams, SensorReport,
+};
+pub use session::{BoardSection, Layer, LayerSection, Session, SessionFile};

@@ -3,7 +3,7 @@
 pub mod npy;
 pub mod opencv;
 
-use std::path::Path;
+use std::path::{Component, Path, PathBuf};
 
 use crate::{Error, Result};
 
@@ -54,4 +54,44 @@ pub fn write_toml<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
 /// Create a directory and its parents, naming it on failure.
 pub fn create_dir(path: &Path) -> Result<()> {
     std::fs::create_dir_all(path).map_err(|e| Error::io(path, e))
+}
+
+/// `to` relative to directory `from` (both must exist), for paths stored in files that must keep
+/// working when the whole tree moves.
+pub fn relative_path(from: &Path, to: &Path) -> Result<PathBuf> {
+    let from = from.canonicalize().map_err(|e| Error::io(from, e))?;
+    let to = to.canonicalize().map_err(|e| Error::io(to, e))?;
+    let a: Vec<Component> = from.components().collect();
+    let b: Vec<Component> = to.components().collect();
+    let common = a.iter().zip(&b).take_while(|(x, y)| x == y).count();
+    let mut out = PathBuf::new();
+    for _ in common..a.len() {
+        out.push("..");
+    }
+    for c in &b[common..] {
+        out.push(c.as_os_str());
+    }
+    if out.as_os_str().is_empty() {
+        out.push(".");
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn relative_paths_walk_up_and_down() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let a = dir.path().join("out/sensors");
+        let b = dir.path().join("session/layer0");
+        std::fs::create_dir_all(&a).expect("a");
+        std::fs::create_dir_all(&b).expect("b");
+        assert_eq!(
+            relative_path(&a, &b).expect("rel"),
+            Path::new("../../session/layer0")
+        );
+        assert_eq!(relative_path(&a, &a).expect("rel"), Path::new("."));
+    }
 }

@@ -5,7 +5,7 @@
 //! loop that projects and captures runs through the driver traits.
 
 mod crosstalk;
-mod field;
+pub(crate) mod field;
 mod response;
 
 pub use crosstalk::{CodeMap, MaskBuild};

@@ -59,6 +59,10 @@ pub struct ProjectorSection {
 pub struct ReferenceSection {
     /// Capture directory.
     pub capture: String,
+    /// Area of the reference plane the recording is valid on, `[x_min, x_max, y_min, y_max]`
+    /// mm (a calibration board's squares); pixels outside are not used. Absent: all of it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub extent: Option<[f64; 4]>,
 }
 
 /// `[residual]`: per-pixel quadratic height residual from calibration (Eq. 3.28).
@@ -109,6 +113,8 @@ pub struct Sensor {
     pub projector: Option<Pinhole>,
     /// Reference capture directory.
     pub reference: Option<PathBuf>,
+    /// Valid area of the reference plane, `[x_min, x_max, y_min, y_max]` mm.
+    pub reference_extent: Option<[f64; 4]>,
     /// Residual field file.
     pub residual: Option<PathBuf>,
     /// Sensor → cell transform.
@@ -180,6 +186,20 @@ impl Sensor {
         if f.reference.is_none() && projector.is_none() {
             return Err(Error::invalid(ctx, "reference", "give a [reference] capture (parallax model) or a full projector calibration k, r, t (classical model)"));
         }
+        let reference_extent = match f.reference.as_ref().and_then(|r| r.extent) {
+            Some(e) => {
+                finite(ctx, "reference.extent", &e)?;
+                if e[0] >= e[1] || e[2] >= e[3] {
+                    return Err(Error::invalid(
+                        ctx,
+                        "reference.extent",
+                        format!("{e:?} is not [x_min, x_max, y_min, y_max] with min < max"),
+                    ));
+                }
+                Some(e)
+            }
+            None => None,
+        };
         let to_common = match &f.to_common {
             Some(m) => {
                 for (i, row) in m.matrix.iter().enumerate() {
@@ -198,6 +218,7 @@ impl Sensor {
             projector_center: center,
             projector,
             reference: f.reference.as_ref().map(|r| base.join(&r.capture)),
+            reference_extent,
             residual: f.residual.as_ref().map(|r| base.join(&r.file)),
             to_common,
         })

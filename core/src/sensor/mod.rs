@@ -93,7 +93,13 @@ impl Reconstructor {
                 &dir.display().to_string(),
             )?;
             let reference = decode(&capture, params)?;
-            let (geometry, axis) = parallax_from_reference(&sensor.camera, &rays, op, &reference)?;
+            let (geometry, axis) = parallax_from_reference(
+                &sensor.camera,
+                &rays,
+                op,
+                &reference,
+                sensor.reference_extent,
+            )?;
             let residual = match &sensor.residual {
                 Some(path) => Some(load_residual(path, &sensor.camera)?),
                 None => None,
@@ -127,8 +133,20 @@ impl Reconstructor {
         projector_center: Vec3,
         reference: &Decoded,
     ) -> Result<Reconstructor> {
+        Reconstructor::parallax_within(camera, projector_center, reference, None)
+    }
+
+    /// As [`Reconstructor::parallax`], using only the reference pixels whose plane point lies in
+    /// `extent` (`[x_min, x_max, y_min, y_max]`, mm).
+    pub fn parallax_within(
+        camera: &Pinhole,
+        projector_center: Vec3,
+        reference: &Decoded,
+        extent: Option<[f64; 4]>,
+    ) -> Result<Reconstructor> {
         let rays = RayTable::new(camera);
-        let (geometry, axis) = parallax_from_reference(camera, &rays, projector_center, reference)?;
+        let (geometry, axis) =
+            parallax_from_reference(camera, &rays, projector_center, reference, extent)?;
         Ok(Reconstructor {
             camera: camera.clone(),
             rays,
@@ -175,30 +193,26 @@ impl Reconstructor {
                 axis,
                 residual,
             } => {
-                let codes = decoded.map(*axis).ok_or_else(|| {
-                    Error::Insufficient(format!("the sensor's reference is decoded along {axis:?} codes, which this capture lacks"))
-                })?;
+                let codes = parallax_codes(decoded, *axis)?;
                 dense.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
                     for (u, out) in row.iter_mut().enumerate() {
                         let i = v * w + u;
-                        let c = codes[i];
-                        if !c.is_finite() || !decoded.col[i].is_finite() {
+                        let Some(pp) = parallax_point(geometry, &self.rays, decoded, codes, i)
+                        else {
                             continue;
-                        }
-                        if let Some(pp) = geometry.point_fast(&self.rays, i, f64::from(c)) {
-                            let mut p = pp.point;
-                            if let Some(res) = residual {
-                                let [a, b, cc] = res[i];
-                                let m = pp.shift;
-                                let e = f64::from(a) * m * m + f64::from(b) * m + f64::from(cc);
-                                let d = p - geometry.camera_center();
-                                if d.z.abs() > 1e-12 {
-                                    let s = (p.z - e - geometry.camera_center().z) / d.z;
-                                    p = geometry.camera_center() + d * s;
-                                }
+                        };
+                        let mut p = pp.point;
+                        if let Some(res) = residual {
+                            let [a, b, cc] = res[i];
+                            let m = pp.shift;
+                            let e = f64::from(a) * m * m + f64::from(b) * m + f64::from(cc);
+                            let d = p - geometry.camera_center();
+                            if d.z.abs() > 1e-12 {
+                                let s = (p.z - e - geometry.camera_center().z) / d.z;
+                                p = geometry.camera_center() + d * s;
                             }
-                            *out = [p.x as f32, p.y as f32, p.z as f32];
                         }
+                        *out = [p.x as f32, p.y as f32, p.z as f32];
                     }
                 });
             }
@@ -230,6 +244,62 @@ impl Reconstructor {
     }
 }
 
+impl Reconstructor {
+    /// Parallax model only: per pixel `[x, y, z, m]`, the point before residual compensation and
+    /// its reference-plane shift m (Eq. 3.27–3.28 fit their residual over m); NaN where invalid.
+    pub fn parallax_detail(&self, decoded: &Decoded) -> Result<Vec<[f32; 4]>> {
+        check_size(
+            &self.camera,
+            decoded.width,
+            decoded.height,
+            "decoded capture",
+        )?;
+        let Model::Parallax { geometry, axis, .. } = &self.model else {
+            return Err(Error::invalid(
+                "sensor",
+                "model",
+                "per-pixel shifts exist only for the parallax model",
+            ));
+        };
+        let codes = parallax_codes(decoded, *axis)?;
+        let w = decoded.width as usize;
+        let mut out = vec![[f32::NAN; 4]; decoded.col.len()];
+        out.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
+            for (u, o) in row.iter_mut().enumerate() {
+                let i = v * w + u;
+                if let Some(pp) = parallax_point(geometry, &self.rays, decoded, codes, i) {
+                    let p = pp.point;
+                    *o = [p.x as f32, p.y as f32, p.z as f32, pp.shift as f32];
+                }
+            }
+        });
+        Ok(out)
+    }
+}
+
+fn parallax_codes(decoded: &Decoded, axis: CodeAxis) -> Result<&[f32]> {
+    decoded.map(axis).ok_or_else(|| {
+        Error::Insufficient(format!(
+            "the sensor's reference is decoded along {axis:?} codes, which this capture lacks"
+        ))
+    })
+}
+
+#[inline]
+fn parallax_point(
+    geometry: &Parallax,
+    rays: &RayTable,
+    decoded: &Decoded,
+    codes: &[f32],
+    i: usize,
+) -> Option<ParallaxPoint> {
+    let c = codes[i];
+    if !c.is_finite() || !decoded.col[i].is_finite() {
+        return None;
+    }
+    geometry.point_fast(rays, i, f64::from(c))
+}
+
 fn check_size(camera: &Pinhole, w: u32, h: u32, what: &str) -> Result<()> {
     if (w, h) != (camera.width, camera.height) {
         return Err(Error::invalid(
@@ -250,6 +320,7 @@ fn parallax_from_reference(
     rays: &RayTable,
     op: Vec3,
     reference: &Decoded,
+    extent: Option<[f64; 4]>,
 ) -> Result<(Parallax, CodeAxis)> {
     check_size(
         camera,
@@ -262,7 +333,7 @@ fn parallax_from_reference(
         let Some(codes) = reference.map(axis) else {
             continue;
         };
-        let samples = plane_samples(camera, rays, codes);
+        let samples = plane_samples(camera, rays, codes, extent);
         if samples.len() < 1000 {
             if axis == CodeAxis::Column {
                 return Err(Error::Insufficient(format!(
@@ -302,8 +373,13 @@ fn parallax_from_reference(
     Ok((g.with_table(rays, pixels), axis))
 }
 
-/// Plane points of valid reference pixels, subsampled to at most ~300 000.
-fn plane_samples(camera: &Pinhole, rays: &RayTable, codes: &[f32]) -> Vec<PlaneSample> {
+/// Plane points of valid reference pixels inside `extent`, subsampled to at most ~300 000.
+fn plane_samples(
+    camera: &Pinhole,
+    rays: &RayTable,
+    codes: &[f32],
+    extent: Option<[f64; 4]>,
+) -> Vec<PlaneSample> {
     let (w, h) = (camera.width as usize, camera.height as usize);
     let stride = ((w * h) as f64 / 300_000.0).sqrt().ceil().max(1.0) as usize;
     let oc = camera.center();
@@ -322,9 +398,12 @@ fn plane_samples(camera: &Pinhole, rays: &RayTable, codes: &[f32]) -> Vec<PlaneS
                 let (x, y) = rays.get(i);
                 let d = r_t * Vec3::new(x, y, 1.0);
                 let lam = -oc.z / d.z;
-                (lam > 0.0).then(|| PlaneSample {
-                    x: oc.x + lam * d.x,
-                    y: oc.y + lam * d.y,
+                let (px, py) = (oc.x + lam * d.x, oc.y + lam * d.y);
+                let inside =
+                    extent.is_none_or(|e| px >= e[0] && px <= e[1] && py >= e[2] && py <= e[3]);
+                (lam > 0.0 && inside).then_some(PlaneSample {
+                    x: px,
+                    y: py,
                     code: f64::from(c),
                 })
             })

@@ -7,14 +7,17 @@ pub mod accuracy;
 mod light;
 mod render;
 mod scene;
+mod session;
 mod shapes;
 mod texture;
 
 pub use light::Light;
 pub use render::{RenderCache, Truth};
 pub use scene::{
-    MaterialSection, ObjectSection, RenderSection, Scene, SceneFile, SimCamera, SimProjector,
+    CalibrationSection, MaterialSection, ObjectSection, RenderSection, Scene, SceneFile, SimCamera,
+    SimProjector,
 };
+pub use session::{simulate_session, SessionOutput};
 pub use shapes::{Object, Shape};
 pub use texture::Texture;
 
@@ -166,6 +169,18 @@ pub fn simulate(
     out: &Path,
     progress: &(dyn Fn(&str, usize, usize) + Sync),
 ) -> Result<SimOutput> {
+    atomic_dir(out, |tmp| write_simulation(scene, tmp, progress))?;
+    Ok(SimOutput {
+        capture: out.join("capture"),
+        reference: out.join("reference"),
+        sensor: out.join("sensor.toml"),
+        truth: out.join("truth"),
+    })
+}
+
+/// Create `out` (absent or empty) by writing into a temporary sibling and renaming it into place,
+/// so that a failed or interrupted run leaves nothing that looks complete.
+pub(crate) fn atomic_dir(out: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
     if out.exists()
         && std::fs::read_dir(out)
             .map_err(|e| Error::io(out, e))?
@@ -188,21 +203,14 @@ pub fn simulate(
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_else(|| "sim".into());
     let tmp = parent.join(format!(".{name}.partial-{}", std::process::id()));
-    let result = write_simulation(scene, &tmp, progress);
-    if let Err(e) = result {
+    if let Err(e) = write(&tmp) {
         let _ = std::fs::remove_dir_all(&tmp);
         return Err(e);
     }
     if out.exists() {
         std::fs::remove_dir(out).map_err(|e| Error::io(out, e))?;
     }
-    std::fs::rename(&tmp, out).map_err(|e| Error::io(out, e))?;
-    Ok(SimOutput {
-        capture: out.join("capture"),
-        reference: out.join("reference"),
-        sensor: out.join("sensor.toml"),
-        truth: out.join("truth"),
-    })
+    std::fs::rename(&tmp, out).map_err(|e| Error::io(out, e))
 }
 
 fn write_simulation(
@@ -241,6 +249,7 @@ pub fn sensor_file(scene: &Scene) -> SensorFile {
         },
         reference: Some(ReferenceSection {
             capture: "reference".into(),
+            extent: None,
         }),
         residual: None,
         to_common: None,

@@ -199,6 +199,42 @@ pub struct SceneFile {
     /// Simulator settings.
     #[serde(default)]
     pub render: RenderSection,
+    /// Render a multi-layer calibration session instead of the objects (SPEC §7).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<CalibrationSection>,
+}
+
+/// `[calibration]`: a chessboard on a table, lifted to each height in turn.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationSection {
+    /// Inner corners along x and y.
+    pub inner_corners: [usize; 2],
+    /// Square size, mm.
+    pub square: f64,
+    /// Board surface heights, the first 0.
+    pub heights: Vec<f64>,
+    /// Material of the board (its albedo is that of the light squares).
+    pub board_material: String,
+    /// Material of the table the board is lifted from.
+    pub table_material: String,
+    /// Albedo factor of the dark squares.
+    #[serde(default = "tenth")]
+    pub dark: f64,
+    /// White border around the squares, mm.
+    #[serde(default = "twenty")]
+    pub margin: f64,
+    /// Board thickness, mm (its surface at layer 0 is z = 0, the table below).
+    #[serde(default = "four_mm")]
+    pub thickness: f64,
+}
+
+fn tenth() -> f64 {
+    0.1
+}
+
+fn four_mm() -> f64 {
+    4.0
 }
 
 /// A material ready for shading.
@@ -474,7 +510,7 @@ impl Scene {
                 markers,
             });
         }
-        if objects.is_empty() {
+        if objects.is_empty() && file.calibration.is_none() {
             return Err(Error::invalid(ctx, "object", "the scene has no objects"));
         }
         Ok(Scene {

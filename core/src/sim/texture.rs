@@ -25,6 +25,18 @@ pub enum Texture {
         /// Period, mm.
         period: f64,
     },
+    /// A calibration chessboard in the x–y plane: `cols × rows` inner corners centred on the
+    /// origin (SPEC §7 board frame), dark squares at `dark` times the albedo, light outside.
+    Chessboard {
+        /// Inner corners along x.
+        cols: usize,
+        /// Inner corners along y.
+        rows: usize,
+        /// Square size, mm.
+        square: f64,
+        /// Albedo factor of the dark squares.
+        dark: f64,
+    },
 }
 
 impl Texture {
@@ -49,6 +61,21 @@ impl Texture {
             Texture::Checker { amplitude, period } => {
                 let s = (p.x / period).floor() + (p.y / period).floor() + (p.z / period).floor();
                 1.0 + amplitude * if s.rem_euclid(2.0) < 1.0 { 1.0 } else { -1.0 }
+            }
+            Texture::Chessboard {
+                cols,
+                rows,
+                square,
+                dark,
+            } => {
+                let a = (p.x / square + (cols as f64 + 1.0) / 2.0).floor();
+                let b = (p.y / square + (rows as f64 + 1.0) / 2.0).floor();
+                let inside = a >= 0.0 && b >= 0.0 && a <= cols as f64 && b <= rows as f64;
+                if inside && (a + b).rem_euclid(2.0) < 1.0 {
+                    dark
+                } else {
+                    1.0
+                }
             }
         }
     }

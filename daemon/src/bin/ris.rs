@@ -72,6 +72,18 @@ enum ExperimentCommand {
 
 #[derive(Subcommand)]
 enum CalibrateCommand {
+    /// A sensor (camera, projector centre, reference, per-pixel residual) from a multi-layer
+    /// session (SPEC §7); the sensor file is written only when every gate passes.
+    Sensor {
+        /// Session directory (with session.toml) or the session file.
+        session: PathBuf,
+        /// Sensor file to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Report (JSON); default `<out stem>.report.json` beside the sensor file.
+        #[arg(long)]
+        report: Option<PathBuf>,
+    },
     /// Camera intrinsics and Brown distortion from chessboard images (Zhang + Levenberg–Marquardt);
     /// views failing the quality gate are named and dropped.
     Camera {
@@ -322,6 +334,16 @@ fn main() -> Result<()> {
                 println!("{}", serde_json::to_string_pretty(&c)?);
             } else {
                 commands::experiment::print_table(&c);
+            }
+        }
+        Command::Calibrate(CalibrateCommand::Sensor {
+            session,
+            out,
+            report,
+        }) => {
+            let cal = commands::calibrate::sensor(&session, &out, report.as_deref())?;
+            if !cal.passed() {
+                std::process::exit(3);
             }
         }
         Command::Calibrate(CalibrateCommand::Camera {

@@ -6,8 +6,9 @@ use anyhow::{Context, Result};
 use rayon::prelude::*;
 use ris_core::calibrate::chessboard::{detect, BoardSize, DetectParams};
 use ris_core::calibrate::{
-    calibrate_camera, fit_gauge, overlap_consistency, BoardView, CameraCalibration, CameraParams,
-    DroppedView, Gauge, GaugeFit, GaugeParams,
+    calibrate_camera, calibrate_sensor, fit_gauge, overlap_consistency, BoardView,
+    CameraCalibration, CameraParams, DroppedView, Gauge, GaugeFit, GaugeParams, SensorCalibration,
+    SensorParams, Session,
 };
 use ris_core::cloud::PointCloud;
 use ris_core::image::GrayImage;
@@ -127,6 +128,104 @@ pub fn camera(
     cal.save(out)
         .with_context(|| format!("writing {}", out.display()))?;
     println!("wrote {}", out.display());
+    Ok(cal)
+}
+
+/// `ris calibrate sensor`: calibrate from a multi-layer session, print the report, write it as
+/// JSON, and write the sensor file (with its residual) only if every gate passed.
+pub fn sensor(session: &Path, out: &Path, report: Option<&Path>) -> Result<SensorCalibration> {
+    let s = Session::load(session)
+        .with_context(|| format!("reading calibration session {}", session.display()))?;
+    let bar = crate::progress::bar(s.layers.len() as u64 + 2, "layers");
+    let cal = calibrate_sensor(&s, &SensorParams::default(), &|stage, _, _| {
+        bar.set_message(stage.to_string());
+        bar.inc(1);
+    });
+    bar.finish_and_clear();
+    let cal = cal.with_context(|| {
+        format!(
+            "calibrating from {}; no sensor file was written",
+            s.path.display()
+        )
+    })?;
+    let r = &cal.report;
+    println!("session {}", r.session);
+    for l in &r.layers {
+        let fmt =
+            |v: Option<f64>, unit: &str| v.map(|x| format!("{x:.3} {unit}")).unwrap_or("-".into());
+        println!(
+            "  layer {} ({}) h {:.2} mm: {} corners{}, reprojection {}, fitted h {}, error before {} after {}{}",
+            l.layer,
+            l.dir,
+            l.height,
+            l.corners,
+            if l.missing.is_empty() { String::new() } else { format!(" ({} missing)", l.missing.len()) },
+            fmt(l.reprojection_rms, "px"),
+            fmt(l.fitted_height, "mm"),
+            fmt(l.before.map(|b| b.rms), "mm"),
+            fmt(l.after.map(|b| b.rms), "mm"),
+            l.excluded.as_ref().map(|e| format!("; EXCLUDED: {e}")).unwrap_or_default()
+        );
+    }
+    println!(
+        "camera fx {:.2} fy {:.2} cx {:.2} cy {:.2} dist [{}], reprojection RMS {:.3} px",
+        r.k[0][0],
+        r.k[1][1],
+        r.k[0][2],
+        r.k[1][2],
+        r.dist.map(|d| format!("{d:.5}")).join(", "),
+        r.reprojection_rms
+    );
+    println!(
+        "camera centre [{:.2}, {:.2}, {:.2}] mm, projector centre [{:.2}, {:.2}, {:.2}] mm ({} rays, RMS {:.3} mm)",
+        r.camera_center[0], r.camera_center[1], r.camera_center[2],
+        r.projector_center[0], r.projector_center[1], r.projector_center[2],
+        r.projector_rays, r.projector_ray_rms
+    );
+    println!(
+        "standoff S {:.1} mm, baseline d {:.1} mm; 0.1 px of decoding error -> {:.3} mm at h = 0, {:.3} mm at the top layer",
+        r.standoff, r.baseline, r.height_error_per_tenth_pixel[0], r.height_error_per_tenth_pixel[1]
+    );
+    println!(
+        "height error before compensation RMS {:.3} mm (max {:.3}), after RMS {:.3} mm (max {:.3})",
+        r.before.rms, r.before.max, r.after.rms, r.after.max
+    );
+    for g in &r.gates {
+        println!(
+            "  gate {}: {:.3} (limit {:.3}) {}",
+            g.name,
+            g.value,
+            g.limit,
+            if g.pass { "pass" } else { "FAIL" }
+        );
+    }
+    println!("verdict: {}", r.verdict);
+    let report_path = match report {
+        Some(p) => p.to_path_buf(),
+        None => {
+            let stem = out
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or("sensor".into());
+            out.with_file_name(format!("{stem}.report.json"))
+        }
+    };
+    if let Some(dir) = report_path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    write_atomic(&report_path, serde_json::to_string_pretty(r)?.as_bytes())
+        .with_context(|| format!("writing {}", report_path.display()))?;
+    println!("wrote report {}", report_path.display());
+    if cal.passed() {
+        cal.save(out)
+            .with_context(|| format!("writing {}", out.display()))?;
+        println!("wrote {}", out.display());
+    } else {
+        println!(
+            "calibration failed its gates; {} was not written",
+            out.display()
+        );
+    }
     Ok(cal)
 }
 

@@ -37,7 +37,12 @@ pub fn run(scene: Option<&Path>, out: &Path) -> Result<DemoResult> {
         }
     };
     let sim_dir = out.join("sim");
-    let o = simulate::run(&scene_path, &sim_dir)?;
+    let simulate::Simulated::Scene(o) = simulate::run(&scene_path, &sim_dir)? else {
+        anyhow::bail!(
+            "{}: a calibration-session scene cannot be demonstrated; give an object scene",
+            scene_path.display()
+        );
+    };
     let t = Instant::now();
     let params = DecodeParams::default();
     let sensor = Sensor::load(&o.sensor)?;

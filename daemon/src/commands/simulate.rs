@@ -1,23 +1,48 @@
-//! `ris simulate`: render a scene's capture, reference, sensor file and ground truth.
+//! `ris simulate`: render a scene's capture, reference, sensor file and ground truth, or, for a
+//! scene with `[calibration]`, a multi-layer calibration session.
 
 use std::path::Path;
 use std::sync::Mutex;
 
 use anyhow::{Context, Result};
-use ris_core::sim::{simulate, Scene, SimOutput};
+use ris_core::sim::{simulate, simulate_session, Scene, SimOutput};
 
 use crate::progress;
 
+/// What `ris simulate` wrote.
+pub enum Simulated {
+    /// A capture of the scene's objects.
+    Scene(SimOutput),
+    /// A calibration session.
+    Session(ris_core::sim::SessionOutput),
+}
+
 /// Render `scene` into `out` with a progress bar.
-pub fn run(scene: &Path, out: &Path) -> Result<SimOutput> {
+pub fn run(scene: &Path, out: &Path) -> Result<Simulated> {
     let s = Scene::load(scene).with_context(|| format!("reading scene {}", scene.display()))?;
-    let frames = (if s.render.rows {
-        2 + 2
-            * (s.projector.width.next_power_of_two().trailing_zeros()
-                + s.projector.height.next_power_of_two().trailing_zeros())
-    } else {
-        2 + 2 * s.projector.width.next_power_of_two().trailing_zeros()
-    }) as u64;
+    if let Some(c) = &s.file.calibration {
+        let layers = c.heights.len() as u64;
+        let pb = progress::bar(layers * frames_per_capture(&s), "rendering");
+        let result = simulate_session(&s, out, &|what, _, _| {
+            pb.set_message(what.to_string());
+            pb.inc(1);
+        });
+        pb.finish_and_clear();
+        let o = result.with_context(|| {
+            format!(
+                "simulating the session of {} into {}",
+                scene.display(),
+                out.display()
+            )
+        })?;
+        println!(
+            "simulated a {layers}-layer calibration session: {}, true sensor {}",
+            o.session.display(),
+            o.truth.display()
+        );
+        return Ok(Simulated::Session(o));
+    }
+    let frames = frames_per_capture(&s);
     let pb = progress::bar(2 * frames, "rendering");
     let stage = Mutex::new(String::new());
     let result = simulate(&s, out, &|what, _, _| {
@@ -40,5 +65,16 @@ pub fn run(scene: &Path, out: &Path) -> Result<SimOutput> {
         o.sensor.display(),
         o.truth.display()
     );
-    Ok(o)
+    Ok(Simulated::Scene(o))
+}
+
+/// Frames in one full capture of the scene's projector.
+fn frames_per_capture(s: &Scene) -> u64 {
+    (if s.render.rows {
+        2 + 2
+            * (s.projector.width.next_power_of_two().trailing_zeros()
+                + s.projector.height.next_power_of_two().trailing_zeros())
+    } else {
+        2 + 2 * s.projector.width.next_power_of_two().trailing_zeros()
+    }) as u64
 }

@@ -734,3 +734,173 @@ fn calibrate_camera_on_the_opencv_images_writes_intrinsics_and_names_bad_views()
         &bad,
     );
 }
+
+/// A small calibration session: 400x300 camera, 9x6 board of 40 mm squares, five layers.
+const SMALL_SESSION: &str = r#"
+[camera]
+width = 400
+height = 300
+k = [[560.0, 0.0, 199.5], [0.0, 560.0, 149.5], [0.0, 0.0, 1.0]]
+r = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]
+t = [0.0, 0.0, 1200.0]
+noise = 1.0
+[projector]
+width = 512
+height = 384
+k = [[750.0, 0.0, 255.5], [0.0, 750.0, 191.5], [0.0, 0.0, 1.0]]
+r = [[0.954479978035, 0.0, -0.298274993136], [0.0, -1.0, 0.0], [-0.298274993136, 0.0, -0.954479978035]]
+t = [0.0, 0.0, 1300.0]
+ambient = 0.02
+blur = 0.5
+[material.board]
+albedo = 0.8
+[material.table]
+albedo = 0.4
+[calibration]
+inner_corners = [9, 6]
+square = 40.0
+heights = [0.0, 30.0, 60.0, 90.0, 120.0]
+board_material = "board"
+table_material = "table"
+"#;
+
+#[test]
+fn calibrate_sensor_from_a_rendered_session_and_refuse_a_thin_one() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let scene = dir.path().join("session.toml");
+    std::fs::write(&scene, SMALL_SESSION).expect("scene");
+    let session = dir.path().join("session");
+    let o = ris(&["simulate", "--scene", s(&scene), "--out", s(&session)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(session.join("layer4/white.png").is_file());
+
+    let out = dir.path().join("cal/sensor.toml");
+    let o = ris(&["calibrate", "sensor", s(&session), "--out", s(&out)]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{stdout}\n{}", stderr(&o));
+    for needle in [
+        "layer 4",
+        "reprojection",
+        "projector centre",
+        "0.1 px",
+        "verdict: pass",
+    ] {
+        assert!(stdout.contains(needle), "missing `{needle}`: {stdout}");
+    }
+    let sensor = ris_core::sensor::Sensor::load(&out).expect("sensor file");
+    let truth = ris_core::sensor::Sensor::load(&session.join("truth.toml")).expect("truth");
+    let centre_error = |s: &ris_core::sensor::Sensor| {
+        (s.projector_center.expect("centre") - truth.projector_center.expect("centre")).norm()
+    };
+    // From corners alone a 400x300 camera confuses focal length with distance; with intrinsics
+    // from a camera calibration only the pose is left to the layers.
+    let alone = centre_error(&sensor);
+    let camera = dir.path().join("camera.toml");
+    let c = &truth.camera;
+    ris_core::calibrate::CameraCalibration {
+        width: 400,
+        height: 300,
+        k: [0, 1, 2].map(|i| [c.k[(i, 0)], c.k[(i, 1)], c.k[(i, 2)]]),
+        dist: c.dist.to_array(),
+        rms: 0.0,
+        square: 40.0,
+        views: Vec::new(),
+        dropped: Vec::new(),
+    }
+    .save(&camera)
+    .expect("camera file");
+    let out2 = dir.path().join("cal2/sensor.toml");
+    let o = ris(&[
+        "calibrate",
+        "sensor",
+        s(&session),
+        "--camera",
+        s(&camera),
+        "--out",
+        s(&out2),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let with_camera = centre_error(&ris_core::sensor::Sensor::load(&out2).expect("sensor"));
+    eprintln!("projector centre error: {alone:.2} mm from the session alone, {with_camera:.2} mm with the camera file");
+    assert!(with_camera < 2.0, "{with_camera}");
+    assert!(sensor
+        .reference
+        .as_ref()
+        .is_some_and(|r| r.join("capture.toml").is_file()));
+    assert!(sensor.residual.as_ref().is_some_and(|r| r.is_file()));
+    let report: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("cal/sensor.report.json")).expect("report"),
+    )
+    .expect("json");
+    assert_eq!(report["verdict"], "pass");
+    assert_eq!(report["layers"].as_array().map(Vec::len), Some(5));
+
+    // Two layers without a board leave three: refused, nothing written.
+    let blank = ris_core::image::GrayImage::from_u8(400, 300, vec![80; 400 * 300]);
+    for l in ["layer1", "layer3"] {
+        blank
+            .save_png(&session.join(l).join("white.png"))
+            .expect("blank");
+    }
+    let bad = dir.path().join("bad/sensor.toml");
+    fails(
+        &["calibrate", "sensor", s(&session), "--out", s(&bad)],
+        &["3 usable layers", "layer 1", "layer 3", "no board"],
+        &bad,
+    );
+}
+
+#[test]
+fn precision_grows_with_camera_noise() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let figure = |noise: f64| -> f64 {
+        let mut captures = Vec::new();
+        for seed in 1..=3 {
+            let text = SCENE.replace("noise = 1.0", &format!("noise = {noise}"))
+                + &format!("\n[render]\nseed = {seed}\n");
+            let scene = dir.path().join(format!("n{noise}-{seed}.toml"));
+            std::fs::write(&scene, text).expect("scene");
+            let out = dir.path().join(format!("n{noise}-{seed}"));
+            let o = ris(&["simulate", "--scene", s(&scene), "--out", s(&out)]);
+            assert!(o.status.success(), "{}", stderr(&o));
+            captures.push(out);
+        }
+        let heat = dir.path().join(format!("heat{noise}.png"));
+        let sensor = captures[0].join("sensor.toml");
+        let mut args = vec!["precision", "--sensor", s(&sensor), "--out", s(&heat)];
+        let caps: Vec<String> = captures
+            .iter()
+            .map(|c| c.join("capture").display().to_string())
+            .collect();
+        args.extend(caps.iter().map(String::as_str));
+        let o = ris(&args);
+        let stdout = String::from_utf8_lossy(&o.stdout).into_owned();
+        assert!(o.status.success(), "{}", stderr(&o));
+        let img = ris_core::image::GrayImage::load(&heat).expect("heat map");
+        assert_eq!((img.width, img.height), (160, 120));
+        let fig: f64 = stdout
+            .split("sensor figure ")
+            .nth(1)
+            .and_then(|t| t.split_whitespace().next())
+            .and_then(|t| t.parse().ok())
+            .unwrap_or_else(|| panic!("no figure in {stdout}"));
+        fig
+    };
+    let (quiet, noisy) = (figure(0.5), figure(6.0));
+    eprintln!("precision figure: noise 0.5 DN {quiet:.4} mm, noise 6 DN {noisy:.4} mm");
+    assert!(quiet > 0.0 && quiet < 0.3, "{quiet}");
+    assert!(noisy > 1.5 * quiet, "{quiet} -> {noisy}");
+    let one = dir.path().join("one.png");
+    fails(
+        &[
+            "precision",
+            "--sensor",
+            s(&dir.path().join("n0.5-1/sensor.toml")),
+            "--out",
+            s(&one),
+            s(&dir.path().join("n0.5-1/capture")),
+        ],
+        &["at least two captures"],
+        &one,
+    );
+}

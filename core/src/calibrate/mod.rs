@@ -6,6 +6,7 @@ pub mod chessboard;
 mod gauge;
 mod homography;
 mod lm;
+mod precision;
 mod sensor;
 mod session;
 
@@ -19,8 +20,9 @@ pub use cell::{
 pub use gauge::{Gauge, GaugeFile, MarkerSection};
 pub use homography::{apply as apply_homography, homography};
 pub use lm::{minimize, LmReport};
+pub use precision::{precision, Precision};
 pub use sensor::{
-    calibrate_sensor, calibrate_sensor_with, ErrorStats, Gate, LayerReport, SensorCalibration,
-    SensorParams, SensorReport,
+    calibrate_sensor, calibrate_sensor_with, fit_height_residual, ErrorStats, Gate, LayerReport,
+    SensorCalibration, SensorParams, SensorReport,
 };
 pub use session::{BoardSection, Layer, LayerSection, Session, SessionFile};

@@ -33,9 +33,12 @@ pub struct SensorParams {
     pub decode: DecodeParams,
     /// Chessboard detection.
     pub detect: DetectParams,
-    /// A layer whose fitted height differs from its stated height by more than this (mm) is
-    /// excluded.
+    /// A layer whose fitted height differs from its stated height by more than this (mm), and
+    /// by more than `height_sigmas` standard errors of the fit, is excluded.
     pub height_gate: f64,
+    /// Standard errors of the fitted height a deviation must also exceed (low-resolution
+    /// cameras measure heights from corners less precisely).
+    pub height_sigmas: f64,
     /// Gate on the camera's reprojection RMS, pixels.
     pub max_reprojection_rms: f64,
     /// Gate on the height residual after compensation (RMS over all layers), mm.
@@ -46,6 +49,10 @@ pub struct SensorParams {
     pub sample_stride: usize,
     /// Smoothing (σ, pixels) of the per-layer height errors before the per-pixel fit.
     pub residual_smoothing: f32,
+    /// Known camera intrinsics (K, distortion), e.g. from `ris calibrate camera` with tilted
+    /// views: the layers then only fix the pose, which a small board decides far better than
+    /// focal length and distance together.
+    pub intrinsics: Option<(Mat3, Distortion)>,
 }
 
 impl Default for SensorParams {
@@ -54,11 +61,13 @@ impl Default for SensorParams {
             decode: DecodeParams::default(),
             detect: DetectParams::default(),
             height_gate: 0.5,
+            height_sigmas: 6.0,
             max_reprojection_rms: 0.5,
             max_residual_rms: 0.2,
             min_layers: 4,
             sample_stride: 3,
             residual_smoothing: 2.0,
+            intrinsics: None,
         }
     }
 }
@@ -114,6 +123,8 @@ pub struct LayerReport {
     pub reprojection_rms: Option<f64>,
     /// Height that best fits its corners with the final camera, mm.
     pub fitted_height: Option<f64>,
+    /// Standard error of that height, mm.
+    pub fitted_height_sigma: Option<f64>,
     /// Height error before residual compensation, mm.
     pub before: Option<ErrorStats>,
     /// Height error after residual compensation, mm.
@@ -319,6 +330,7 @@ pub fn calibrate_sensor_with(
             missing: Vec::new(),
             reprojection_rms: None,
             fitted_height: None,
+            fitted_height_sigma: None,
             before: None,
             after: None,
             excluded: None,
@@ -385,20 +397,23 @@ pub fn calibrate_sensor_with(
             .iter()
             .flat_map(|&i| layers[i].corners.iter().flatten().copied())
             .collect();
-        let camera = fit_camera(&obs, width, height)?;
-        let mut worst: Option<(usize, f64)> = None;
+        let camera = fit_camera(&obs, width, height, params.intrinsics.as_ref())?;
+        // The layer whose height deviates most, relative to its gate.
+        let mut worst: Option<(usize, f64, f64)> = None;
         for &i in &used {
             let corners = layers[i].corners.as_deref().unwrap_or_default();
-            let fitted = fit_height(&camera, corners, session.layers[i].height);
+            let (fitted, sigma) = fit_height(&camera, corners, session.layers[i].height);
             reports[i].fitted_height = Some(fitted);
+            reports[i].fitted_height_sigma = Some(sigma);
             reports[i].reprojection_rms = Some(reprojection_rms(&camera, corners));
             let dev = (fitted - session.layers[i].height).abs();
-            if worst.is_none_or(|(_, d)| dev > d) {
-                worst = Some((i, dev));
+            let gate = params.height_gate.max(params.height_sigmas * sigma);
+            if worst.is_none_or(|(_, d, g)| dev / gate > d / g) {
+                worst = Some((i, dev, gate));
             }
         }
         match worst {
-            Some((0, dev)) if dev > params.height_gate => {
+            Some((0, dev, gate)) if dev > gate => {
                 return Err(Error::Insufficient(format!(
                     "the reference layer 0 ({}) fits height {:.2} mm instead of 0: the layer \
                      heights are inconsistent; no calibration written",
@@ -406,12 +421,11 @@ pub fn calibrate_sensor_with(
                     reports[0].fitted_height.unwrap_or(f64::NAN)
                 )));
             }
-            Some((i, dev)) if dev > params.height_gate => {
+            Some((i, dev, gate)) if dev > gate => {
                 reports[i].excluded = Some(format!(
-                    "its corners fit height {:.2} mm, not the stated {:.2} mm ({dev:.2} mm > gate {:.2} mm)",
+                    "its corners fit height {:.2} mm, not the stated {:.2} mm ({dev:.2} mm > gate {gate:.2} mm)",
                     reports[i].fitted_height.unwrap_or(f64::NAN),
                     session.layers[i].height,
-                    params.height_gate
                 ));
                 tracing::warn!(
                     layer = i,
@@ -456,7 +470,7 @@ pub fn calibrate_sensor_with(
 
     // Residual per pixel.
     let rec = Reconstructor::parallax_within(&camera, op, &layers[0].decoded, Some(extent))?;
-    let mut errors: Vec<(usize, Vec<[f32; 2]>)> = Vec::new();
+    let mut maps: Vec<Vec<[f32; 2]>> = Vec::new();
     for &i in &used {
         let detail = rec.parallax_detail(&layers[i].decoded)?;
         let h = session.layers[i].height as f32;
@@ -474,10 +488,10 @@ pub fn calibrate_sensor_with(
                 }
             })
             .collect();
-        errors.push((i, em));
+        maps.push(em);
     }
-    let residual = fit_residual(
-        &errors,
+    let residual = fit_height_residual(
+        &maps,
         width as usize,
         height as usize,
         params.residual_smoothing,
@@ -485,7 +499,7 @@ pub fn calibrate_sensor_with(
     progress("residual", 1, 1);
     let mut all_before = Vec::new();
     let mut all_after = Vec::new();
-    for (i, em) in &errors {
+    for (i, em) in used.iter().zip(&maps) {
         let before: Vec<f64> = em
             .iter()
             .filter(|v| v[0].is_finite())
@@ -602,7 +616,13 @@ fn rows3(m: &Mat3) -> [[f64; 3]; 3] {
 
 /// Camera by normalised DLT on non-coplanar points (Eq. 3.25), decomposed into K [R | t] by RQ,
 /// then refined with Brown distortion by Levenberg–Marquardt.
-pub(crate) fn fit_camera(obs: &[(Vec3, [f64; 2])], width: u32, height: u32) -> Result<Pinhole> {
+/// With `intrinsics` (K and distortion from `ris calibrate camera`) only the pose is refined.
+pub(crate) fn fit_camera(
+    obs: &[(Vec3, [f64; 2])],
+    width: u32,
+    height: u32,
+    intrinsics: Option<&(Mat3, Distortion)>,
+) -> Result<Pinhole> {
     if obs.len() < 12 {
         return Err(Error::Insufficient(format!(
             "{} corners; the camera needs at least 12 on two or more heights",
@@ -693,6 +713,35 @@ pub(crate) fn fit_camera(obs: &[(Vec3, [f64; 2])], width: u32, height: u32) -> R
     }
     let k = k / k[(2, 2)];
     let rv = Rotation3::from_matrix(&rot).scaled_axis();
+    let residuals = |cam: &Pinhole, out: &mut Vec<f64>| {
+        out.clear();
+        for (p, q) in obs {
+            match cam.project(p) {
+                Some((u, v)) => {
+                    out.push(u - q[0]);
+                    out.push(v - q[1]);
+                }
+                None => {
+                    out.push(1e6);
+                    out.push(1e6);
+                }
+            }
+        }
+    };
+    if let Some((kf, df)) = intrinsics {
+        let unpack = |x: &DVector<f64>| Pinhole {
+            width,
+            height,
+            k: *kf,
+            dist: *df,
+            r: Rotation3::from_scaled_axis(Vec3::new(x[0], x[1], x[2])).into_inner(),
+            t: Vec3::new(x[3], x[4], x[5]),
+        };
+        let mut x = DVector::from_vec(vec![rv.x, rv.y, rv.z, t.x, t.y, t.z]);
+        let scale = [0.1, 0.1, 0.1, t.norm(), t.norm(), t.norm()];
+        lm::minimize(&mut x, &scale, 100, |x, out| residuals(&unpack(x), out));
+        return Ok(unpack(&x));
+    }
     // k3 stays 0: one board pose rarely reaches the image corners, where k3 would be decided.
     let x0 = vec![
         k[(0, 0)],
@@ -735,22 +784,7 @@ pub(crate) fn fit_camera(obs: &[(Vec3, [f64; 2])], width: u32, height: u32) -> R
         t.norm(),
     ];
     let mut x = DVector::from_vec(x0);
-    let report = lm::minimize(&mut x, &scale, 100, |x, out| {
-        out.clear();
-        let cam = unpack(x);
-        for (p, q) in obs {
-            match cam.project(p) {
-                Some((u, v)) => {
-                    out.push(u - q[0]);
-                    out.push(v - q[1]);
-                }
-                None => {
-                    out.push(1e6);
-                    out.push(1e6);
-                }
-            }
-        }
-    });
+    let report = lm::minimize(&mut x, &scale, 100, |x, out| residuals(&unpack(x), out));
     tracing::debug!(?report, "sensor camera LM");
     let cam = unpack(&x);
     if !cam.k.iter().all(|v| v.is_finite()) || cam.k[(0, 0)] <= 0.0 || cam.k[(1, 1)] <= 0.0 {
@@ -773,8 +807,8 @@ fn reprojection_rms(camera: &Pinhole, obs: &[(Vec3, [f64; 2])]) -> f64 {
 }
 
 /// The board height that best explains a layer's corners with `camera` (Gauss–Newton in one
-/// unknown, starting from the stated height).
-fn fit_height(camera: &Pinhole, obs: &[(Vec3, [f64; 2])], start: f64) -> f64 {
+/// unknown, starting from the stated height), with its standard error from the residuals.
+fn fit_height(camera: &Pinhole, obs: &[(Vec3, [f64; 2])], start: f64) -> (f64, f64) {
     let cost = |h: f64| -> f64 {
         obs.iter()
             .map(|(p, q)| match camera.project(&Vec3::new(p.x, p.y, h)) {
@@ -798,7 +832,20 @@ fn fit_height(camera: &Pinhole, obs: &[(Vec3, [f64; 2])], start: f64) -> f64 {
             break;
         }
     }
-    h
+    // σ_h² = σ² / Σ |∂(u, v)/∂h|², σ² the residual variance per coordinate.
+    let e = 1e-3;
+    let mut jj = 0.0;
+    for (p, _) in obs {
+        if let (Some(a), Some(b)) = (
+            camera.project(&Vec3::new(p.x, p.y, h + e)),
+            camera.project(&Vec3::new(p.x, p.y, h - e)),
+        ) {
+            jj += ((a.0 - b.0) / (2.0 * e)).powi(2) + ((a.1 - b.1) / (2.0 * e)).powi(2);
+        }
+    }
+    let dof = (2 * obs.len()).saturating_sub(1).max(1) as f64;
+    let sigma = (cost(h) / dof).sqrt() / jj.max(1e-300).sqrt();
+    (h, sigma)
 }
 
 /// Column and row code maps of the reference plane from layer 0 inside `extent`.
@@ -956,13 +1003,14 @@ fn projector_center(
     Ok((op, rms, kept.len()))
 }
 
-/// Per-pixel quadratic e = A m² + B m + C (Eq. 3.28) over the layers' height errors (each map
-/// smoothed by a NaN-aware Gaussian first); pixels with fewer than four layers take the nearest
-/// fitted pixel's coefficients.
-fn fit_residual(errors: &[(usize, Vec<[f32; 2]>)], w: usize, h: usize, sigma: f32) -> Vec<f32> {
+/// Per-pixel quadratic e = A m² + B m + C (Eq. 3.28) from per-layer maps of `[e, m]` (height
+/// error, mm, NaN where unmeasured; reference-plane shift m, mm), each map smoothed by a NaN-aware
+/// Gaussian of `sigma` pixels first. Pixels measured on fewer than four layers take the nearest
+/// fitted pixel's coefficients. Returns A, B, C interleaved, `w × h × 3`.
+pub fn fit_height_residual(errors: &[Vec<[f32; 2]>], w: usize, h: usize, sigma: f32) -> Vec<f32> {
     let smoothed: Vec<Vec<[f32; 2]>> = errors
         .iter()
-        .map(|(_, em)| {
+        .map(|em| {
             let valid: Vec<f32> = em
                 .iter()
                 .map(|v| if v[0].is_finite() { 1.0 } else { 0.0 })
@@ -1068,14 +1116,21 @@ mod tests {
                 }
             }
         }
-        let cam = fit_camera(&obs, 800, 600).expect("camera");
+        let cam = fit_camera(&obs, 800, 600, None).expect("camera");
+        let fixed = fit_camera(&obs, 800, 600, Some(&(truth.k, truth.dist))).expect("pose");
+        let dc = (fixed.center() - truth.center()).norm();
+        assert!(
+            dc < 0.5,
+            "with known intrinsics the centre is off by {dc} mm"
+        );
         assert!((cam.k[(0, 0)] - 1010.0).abs() < 2.0, "fx {}", cam.k[(0, 0)]);
         assert!((cam.k[(1, 1)] - 1005.0).abs() < 2.0, "fy {}", cam.k[(1, 1)]);
         assert!((cam.k[(0, 2)] - 405.0).abs() < 2.0 && (cam.k[(1, 2)] - 296.0).abs() < 2.0);
         let dc = (cam.center() - truth.center()).norm();
         assert!(dc < 2.0, "camera centre off by {dc} mm");
         assert!(reprojection_rms(&cam, &obs) < 0.05);
-        let h = fit_height(&cam, &obs[117 * 2..117 * 3], 70.0);
+        let (h, sigma) = fit_height(&cam, &obs[117 * 2..117 * 3], 70.0);
+        assert!(sigma > 0.0 && sigma < 0.05, "σ_h {sigma}");
         assert!((h - 80.0).abs() < 0.05, "fitted height {h}");
     }
 }

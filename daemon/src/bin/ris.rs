@@ -77,6 +77,9 @@ enum CalibrateCommand {
     Sensor {
         /// Session directory (with session.toml) or the session file.
         session: PathBuf,
+        /// Camera file from `ris calibrate camera`: keep its K and distortion, fit only the pose.
+        #[arg(long)]
+        camera: Option<PathBuf>,
         /// Sensor file to write.
         #[arg(long)]
         out: PathBuf,
@@ -174,6 +177,24 @@ enum Command {
         /// Sensor model (auto: parallax when the sensor has a reference).
         #[arg(long, value_enum, default_value_t = Model::Auto)]
         model: Model,
+        #[command(flatten)]
+        decode: DecodeArgs,
+    },
+    /// Precision (Eq. 3.4-3.6): repeated captures of one scene, per-pixel height standard
+    /// deviation, the sensor figure and a heat map PNG.
+    Precision {
+        /// Sensor file (TOML).
+        #[arg(long)]
+        sensor: PathBuf,
+        /// Capture directories of the same scene (two or more).
+        #[arg(required = true)]
+        captures: Vec<PathBuf>,
+        /// Heat map to write (PNG).
+        #[arg(long)]
+        out: PathBuf,
+        /// Top of the colour scale, mm (default three times the sensor figure).
+        #[arg(long)]
+        scale: Option<f64>,
         #[command(flatten)]
         decode: DecodeArgs,
     },
@@ -312,6 +333,15 @@ fn main() -> Result<()> {
             };
             commands::reconstruct::run(&sensor, &capture, model, &decode.params(), &out)?;
         }
+        Command::Precision {
+            sensor,
+            captures,
+            out,
+            scale,
+            decode,
+        } => {
+            commands::precision::run(&sensor, &captures, &decode.params(), &out, scale)?;
+        }
         Command::Simulate { scene, out } => {
             commands::simulate::run(&scene, &out)?;
         }
@@ -338,10 +368,12 @@ fn main() -> Result<()> {
         }
         Command::Calibrate(CalibrateCommand::Sensor {
             session,
+            camera,
             out,
             report,
         }) => {
-            let cal = commands::calibrate::sensor(&session, &out, report.as_deref())?;
+            let cal =
+                commands::calibrate::sensor(&session, camera.as_deref(), &out, report.as_deref())?;
             if !cal.passed() {
                 std::process::exit(3);
             }

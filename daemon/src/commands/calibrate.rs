@@ -133,11 +133,33 @@ pub fn camera(
 
 /// `ris calibrate sensor`: calibrate from a multi-layer session, print the report, write it as
 /// JSON, and write the sensor file (with its residual) only if every gate passed.
-pub fn sensor(session: &Path, out: &Path, report: Option<&Path>) -> Result<SensorCalibration> {
+pub fn sensor(
+    session: &Path,
+    camera: Option<&Path>,
+    out: &Path,
+    report: Option<&Path>,
+) -> Result<SensorCalibration> {
     let s = Session::load(session)
         .with_context(|| format!("reading calibration session {}", session.display()))?;
+    let mut params = SensorParams::default();
+    if let Some(path) = camera {
+        let c = CameraCalibration::load(path)
+            .with_context(|| format!("reading camera file {}", path.display()))?;
+        let first = ris_core::capture::CaptureSet::load(&s.layers[0].dir)
+            .with_context(|| format!("reading {}", s.layers[0].dir.display()))?;
+        anyhow::ensure!(
+            (c.width, c.height) == (first.width, first.height),
+            "{}: the camera file is for {}x{} images, the session's are {}x{}",
+            path.display(),
+            c.width,
+            c.height,
+            first.width,
+            first.height
+        );
+        params.intrinsics = Some((c.k_matrix(), c.distortion()));
+    }
     let bar = crate::progress::bar(s.layers.len() as u64 + 2, "layers");
-    let cal = calibrate_sensor(&s, &SensorParams::default(), &|stage, _, _| {
+    let cal = calibrate_sensor(&s, &params, &|stage, _, _| {
         bar.set_message(stage.to_string());
         bar.inc(1);
     });
@@ -154,7 +176,7 @@ pub fn sensor(session: &Path, out: &Path, report: Option<&Path>) -> Result<Senso
         let fmt =
             |v: Option<f64>, unit: &str| v.map(|x| format!("{x:.3} {unit}")).unwrap_or("-".into());
         println!(
-            "  layer {} ({}) h {:.2} mm: {} corners{}, reprojection {}, fitted h {}, error before {} after {}{}",
+            "  layer {} ({}) h {:.2} mm: {} corners{}, reprojection {}, fitted h {} ± {}, error before {} after {}{}",
             l.layer,
             l.dir,
             l.height,
@@ -162,6 +184,7 @@ pub fn sensor(session: &Path, out: &Path, report: Option<&Path>) -> Result<Senso
             if l.missing.is_empty() { String::new() } else { format!(" ({} missing)", l.missing.len()) },
             fmt(l.reprojection_rms, "px"),
             fmt(l.fitted_height, "mm"),
+            fmt(l.fitted_height_sigma, "mm"),
             fmt(l.before.map(|b| b.rms), "mm"),
             fmt(l.after.map(|b| b.rms), "mm"),
             l.excluded.as_ref().map(|e| format!("; EXCLUDED: {e}")).unwrap_or_default()

@@ -7,6 +7,7 @@ pub mod experiment;
 pub mod inspect;
 pub mod merge;
 pub mod patterns;
+pub mod precision;
 pub mod reconstruct;
 pub mod register;
 pub mod simulate;

@@ -904,3 +904,55 @@ fn precision_grows_with_camera_noise() {
         &one,
     );
 }
+
+#[cfg(feature = "aravis")]
+#[test]
+fn camera_grab_from_the_aravis_fake_gige_camera_on_loopback() {
+    struct Fake(std::process::Child);
+    impl Drop for Fake {
+        fn drop(&mut self) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+    let _fake = Fake(
+        Command::new("arv-fake-gv-camera-0.8")
+            .args(["-i", "127.0.0.1"])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .expect("arv-fake-gv-camera-0.8 (apt-get install aravis-tools)"),
+    );
+    std::thread::sleep(std::time::Duration::from_millis(700));
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("grab");
+    let o = ris(&[
+        "camera",
+        "grab",
+        "--backend",
+        "aravis",
+        "--device",
+        "127.0.0.1",
+        "--trigger",
+        "software",
+        "--count",
+        "3",
+        "--out",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for i in 0..3 {
+        let img =
+            ris_core::image::GrayImage::load(&out.join(format!("frame_{i:03}.png"))).expect("png");
+        assert_eq!((img.width, img.height, img.bit_depth()), (512, 512, 8));
+        // The fake's ramp: values rise along a row until they wrap.
+        let row: Vec<f32> = (0..40).map(|x| img.get(x, 100)).collect();
+        let rising = row.windows(2).filter(|w| w[1] >= w[0]).count();
+        assert!(rising >= 35, "not a ramp: {row:?}");
+    }
+    let meta = std::fs::read_to_string(out.join("frames.toml")).expect("frames.toml");
+    assert!(
+        meta.contains("Aravis Fake") && meta.matches("[[frame]]").count() == 3,
+        "{meta}"
+    );
+}

@@ -70,6 +70,48 @@ enum ExperimentCommand {
     },
 }
 
+#[derive(Clone, Copy, ValueEnum)]
+enum CameraBackend {
+    Aravis,
+    V4l2,
+    Mock,
+}
+
+#[derive(Subcommand)]
+enum CameraCommand {
+    /// Cameras this build can open (the Aravis fake, the mock); `--discover` also asks Aravis,
+    /// which broadcasts a GigE Vision discovery on every network interface.
+    List {
+        /// Broadcast a discovery (never done unless asked).
+        #[arg(long)]
+        discover: bool,
+    },
+    /// Grab frames: one PNG each and `frames.toml` (ids, timestamps, exposure, gain).
+    Grab {
+        /// Backend.
+        #[arg(long, value_enum)]
+        backend: CameraBackend,
+        /// Device: an IP address, an Aravis id or `fake` (aravis); a scene file or `demo` (mock).
+        #[arg(long)]
+        device: String,
+        /// Trigger: `software` (one trigger per frame) or `free` (free run).
+        #[arg(long, default_value = "software")]
+        trigger: String,
+        /// Frames to grab.
+        #[arg(long, default_value_t = 1)]
+        count: usize,
+        /// Exposure time, µs.
+        #[arg(long)]
+        exposure_us: Option<f64>,
+        /// Wait per frame, ms.
+        #[arg(long, default_value_t = 3000)]
+        timeout_ms: u64,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
 #[derive(Subcommand)]
 enum CalibrateCommand {
     /// A sensor (camera, projector centre, reference, per-pixel residual) from a multi-layer
@@ -180,6 +222,9 @@ enum Command {
         #[command(flatten)]
         decode: DecodeArgs,
     },
+    /// Cameras: list what can be opened, grab frames.
+    #[command(subcommand)]
+    Camera(CameraCommand),
     /// Precision (Eq. 3.4-3.6): repeated captures of one scene, per-pixel height standard
     /// deviation, the sensor figure and a heat map PNG.
     Precision {
@@ -332,6 +377,38 @@ fn main() -> Result<()> {
                 Model::Classical => ModelChoice::Classical,
             };
             commands::reconstruct::run(&sensor, &capture, model, &decode.params(), &out)?;
+        }
+        Command::Camera(CameraCommand::List { discover }) => {
+            commands::camera::list(discover)?;
+        }
+        Command::Camera(CameraCommand::Grab {
+            backend,
+            device,
+            trigger,
+            count,
+            exposure_us,
+            timeout_ms,
+            out,
+        }) => {
+            let software = match trigger.as_str() {
+                "software" => true,
+                "free" => false,
+                other => anyhow::bail!("--trigger {other:?}: expected `software` or `free`"),
+            };
+            let backend = match backend {
+                CameraBackend::Aravis => commands::camera::Backend::Aravis,
+                CameraBackend::V4l2 => commands::camera::Backend::V4l2,
+                CameraBackend::Mock => commands::camera::Backend::Mock,
+            };
+            commands::camera::grab(
+                backend,
+                &device,
+                software,
+                count,
+                exposure_us,
+                std::time::Duration::from_millis(timeout_ms),
+                &out,
+            )?;
         }
         Command::Precision {
             sensor,

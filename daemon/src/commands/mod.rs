@@ -1,6 +1,7 @@
 //! One module per `ris` sub-command.
 
 pub mod calibrate;
+pub mod camera;
 pub mod decode;
 pub mod demo;
 pub mod experiment;

@@ -38,18 +38,7 @@ where
     let mut trial = Vec::with_capacity(m);
     while iterations < max_iterations {
         iterations += 1;
-        let columns: Vec<Vec<f64>> = (0..n)
-            .into_par_iter()
-            .map(|j| {
-                let h = 1e-7 * scale[j].abs().max(1e-12) + 1e-10 * x[j].abs();
-                let mut xj = x.clone();
-                xj[j] += h;
-                let mut rj = Vec::with_capacity(m);
-                residuals(&xj, &mut rj);
-                rj.iter().zip(&r).map(|(a, b)| (a - b) / h).collect()
-            })
-            .collect();
-        let jac = DMatrix::from_fn(m, n, |i, j| columns[j][i]);
+        let jac = jacobian(x, scale, &r, &residuals);
         let jt = jac.transpose();
         let a = &jt * &jac;
         let g = &jt * DVector::from_column_slice(&r);
@@ -95,6 +84,41 @@ where
         cost,
         iterations,
     }
+}
+
+/// Forward-difference Jacobian of `residuals` at `x` (steps as in [`minimize`]).
+fn jacobian<F>(x: &DVector<f64>, scale: &[f64], r: &[f64], residuals: &F) -> DMatrix<f64>
+where
+    F: Fn(&DVector<f64>, &mut Vec<f64>) + Sync,
+{
+    let m = r.len();
+    let columns: Vec<Vec<f64>> = (0..x.len())
+        .into_par_iter()
+        .map(|j| {
+            let h = 1e-7 * scale[j].abs().max(1e-12) + 1e-10 * x[j].abs();
+            let mut xj = x.clone();
+            xj[j] += h;
+            let mut rj = Vec::with_capacity(m);
+            residuals(&xj, &mut rj);
+            rj.iter().zip(r).map(|(a, b)| (a - b) / h).collect()
+        })
+        .collect();
+    DMatrix::from_fn(m, x.len(), |i, j| columns[j][i])
+}
+
+/// Covariance σ² (JᵀJ)⁻¹ of the parameters at a least-squares solution `x`, with σ² the
+/// residual variance per degree of freedom; `None` when the problem is singular there.
+pub fn covariance<F>(x: &DVector<f64>, scale: &[f64], residuals: F) -> Option<DMatrix<f64>>
+where
+    F: Fn(&DVector<f64>, &mut Vec<f64>) + Sync,
+{
+    let mut r = Vec::new();
+    residuals(x, &mut r);
+    let dof = r.len().checked_sub(x.len()).filter(|&d| d > 0)?;
+    let sigma2 = r.iter().map(|v| v * v).sum::<f64>() / dof as f64;
+    let j = jacobian(x, scale, &r, &residuals);
+    let jtj = j.transpose() * &j;
+    jtj.try_inverse().map(|inv| inv * sigma2)
 }
 
 #[cfg(test)]

@@ -161,6 +161,11 @@ pub struct SensorReport {
     pub reprojection_rms: f64,
     /// Camera centre in the board frame, mm.
     pub camera_center: [f64; 3],
+    /// Standard error of the camera centre from the corners alone (all camera parameters
+    /// free), mm; large when the session decides focal length and distance poorly.
+    pub camera_center_sigma: Option<[f64; 3]>,
+    /// Standard error of fx from the corners alone, pixels.
+    pub focal_sigma: Option<f64>,
     /// Projector centre in the board frame, mm.
     pub projector_center: [f64; 3],
     /// RMS distance of the traced projector rays from the fitted centre, mm.
@@ -442,6 +447,11 @@ pub fn calibrate_sensor_with(
         .flat_map(|&i| layers[i].corners.iter().flatten().copied())
         .collect();
     let camera_rms = reprojection_rms(&camera, &obs);
+    let uncertainty = if params.intrinsics.is_none() {
+        camera_uncertainty(&camera, &obs)
+    } else {
+        None
+    };
     let rays = RayTable::new(&camera);
     let [hx, hy] = session.board_half_extent();
     let extent = [-hx, hx, -hy, hy];
@@ -579,6 +589,8 @@ pub fn calibrate_sensor_with(
         dist: camera.dist.to_array(),
         reprojection_rms: camera_rms,
         camera_center: [oc.x, oc.y, oc.z],
+        camera_center_sigma: uncertainty.map(|u| u.1),
+        focal_sigma: uncertainty.map(|u| u.0),
         projector_center: [op.x, op.y, op.z],
         projector_ray_rms: ray_rms,
         projector_rays: ray_count,
@@ -793,6 +805,71 @@ pub(crate) fn fit_camera(
         ));
     }
     Ok(cam)
+}
+
+/// Standard errors of the camera's focal length (px) and centre (mm) fitted from `obs`
+/// (all parameters free, as [`fit_camera`] without intrinsics): how well the session decides
+/// them. A small board far away leaves focal length and distance entangled.
+pub(crate) fn camera_uncertainty(
+    cam: &Pinhole,
+    obs: &[(Vec3, [f64; 2])],
+) -> Option<(f64, [f64; 3])> {
+    let rv = Rotation3::from_matrix(&cam.r).scaled_axis();
+    let d = cam.dist.to_array();
+    let x = DVector::from_vec(vec![
+        cam.k[(0, 0)],
+        cam.k[(1, 1)],
+        cam.k[(0, 2)],
+        cam.k[(1, 2)],
+        d[0],
+        d[1],
+        d[2],
+        d[3],
+        rv.x,
+        rv.y,
+        rv.z,
+        cam.t.x,
+        cam.t.y,
+        cam.t.z,
+    ]);
+    let unpack = |x: &DVector<f64>| Pinhole {
+        width: cam.width,
+        height: cam.height,
+        k: Mat3::new(x[0], 0.0, x[2], 0.0, x[1], x[3], 0.0, 0.0, 1.0),
+        dist: Distortion::from_array([x[4], x[5], x[6], x[7], 0.0]),
+        r: Rotation3::from_scaled_axis(Vec3::new(x[8], x[9], x[10])).into_inner(),
+        t: Vec3::new(x[11], x[12], x[13]),
+    };
+    let tn = cam.t.norm();
+    let scale = [
+        x[0], x[1], 1000.0, 1000.0, 0.1, 0.1, 0.01, 0.01, 0.1, 0.1, 0.1, tn, tn, tn,
+    ];
+    let cov = lm::covariance(&x, &scale, |x, out| {
+        out.clear();
+        let c = unpack(x);
+        for (p, q) in obs {
+            let (u, v) = c.project(p).unwrap_or((1e6, 1e6));
+            out.push(u - q[0]);
+            out.push(v - q[1]);
+        }
+    })?;
+    // Propagate to the centre C = −Rᵀ t through its numerical Jacobian in the pose parameters.
+    let c0 = unpack(&x).center();
+    let mut g = nalgebra::DMatrix::<f64>::zeros(3, x.len());
+    for j in 8..14 {
+        let h = 1e-6 * scale[j];
+        let mut xj = x.clone();
+        xj[j] += h;
+        let dc = (unpack(&xj).center() - c0) / h;
+        for i in 0..3 {
+            g[(i, j)] = dc[i];
+        }
+    }
+    let sc = &g * cov.clone() * g.transpose();
+    Some((
+        cov[(0, 0)].max(0.0).sqrt(),
+        [0, 1, 2].map(|i| sc[(i, i)].max(0.0).sqrt()),
+    ))
 }
 
 fn reprojection_rms(camera: &Pinhole, obs: &[(Vec3, [f64; 2])]) -> f64 {

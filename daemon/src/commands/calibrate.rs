@@ -205,6 +205,19 @@ pub fn sensor(
         r.projector_center[0], r.projector_center[1], r.projector_center[2],
         r.projector_rays, r.projector_ray_rms
     );
+    if let (Some(sc), Some(sf)) = (r.camera_center_sigma, r.focal_sigma) {
+        println!(
+            "camera centre standard error [{:.2}, {:.2}, {:.2}] mm, fx ± {sf:.2} px",
+            sc[0], sc[1], sc[2]
+        );
+        if sc.iter().any(|s| *s > 1.0) {
+            println!(
+                "  note: the layers decide focal length and distance together poorly; heights stay \
+                 consistent, but for a trustworthy pose calibrate the camera with tilted views \
+                 (`ris calibrate camera`) and pass it with --camera"
+            );
+        }
+    }
     println!(
         "standoff S {:.1} mm, baseline d {:.1} mm; 0.1 px of decoding error -> {:.3} mm at h = 0, {:.3} mm at the top layer",
         r.standoff, r.baseline, r.height_error_per_tenth_pixel[0], r.height_error_per_tenth_pixel[1]

@@ -784,6 +784,8 @@ fn calibrate_sensor_from_a_rendered_session_and_refuse_a_thin_one() {
         "projector centre",
         "0.1 px",
         "verdict: pass",
+        "standard error",
+        "--camera",
     ] {
         assert!(stdout.contains(needle), "missing `{needle}`: {stdout}");
     }

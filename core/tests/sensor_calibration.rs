@@ -99,6 +99,29 @@ fn calibrated_sensor_matches_truth_and_measures_an_unseen_scene() {
     assert!(acc.rms_error_mm <= 0.12, "{acc}");
     assert!(acc.outlier_fraction <= 0.005, "{acc}");
 
+    // The full projector calibration (classical model) from the same session.
+    let proj = cal.projector.as_ref().expect("full projector calibration");
+    assert!(
+        (proj.k[(0, 0)] - truth.projector.k[(0, 0)]).abs() < 3.0,
+        "projector fx {}",
+        proj.k[(0, 0)]
+    );
+    assert!((proj.center() - truth.projector.center()).norm() < 3.0);
+    let classical =
+        Reconstructor::new(&sensor, ModelChoice::Classical, &params).expect("classical");
+    let acc_c = evaluate(
+        &classical
+            .reconstruct(&decode(&capture, &params).expect("decode"))
+            .expect("cloud"),
+        &sim.cache.truth,
+        0.999,
+    );
+    eprintln!("unseen scene, classical model from the same calibration: {acc_c}");
+    assert!(
+        acc_c.completeness >= 0.95 && acc_c.mean_abs_error_mm <= 0.15,
+        "{acc_c}"
+    );
+
     // The residual absorbs a systematic model error (Ch. 3.2.4: 1 mm before, < 0.2 mm after):
     // with the projector centre 8 mm off, fit on every layer but one, check the held-out one.
     let off = cal.projector_center + ris_core::geometry::Vec3::new(6.0, 0.0, -5.0);

@@ -172,6 +172,10 @@ pub struct SensorReport {
     pub projector_ray_rms: f64,
     /// Projector rays used.
     pub projector_rays: usize,
+    /// Centre of the full projector calibration, mm (compare with `projector_center`).
+    pub projector_full_center: Option<[f64; 3]>,
+    /// Reprojection RMS of the full projector calibration, projector pixels.
+    pub projector_reprojection_rms: Option<f64>,
     /// Standoff S of the parallel form (projector centre height), mm.
     pub standoff: f64,
     /// Baseline d of the parallel form (horizontal camera–projector distance), mm.
@@ -198,6 +202,9 @@ pub struct SensorCalibration {
     pub projector_size: (u32, u32),
     /// Projector centre O_p, mm.
     pub projector_center: Vec3,
+    /// The projector calibrated as an inverse camera from the decoded board points (classical
+    /// model), when the fit succeeded.
+    pub projector: Option<Pinhole>,
     /// The reference recording (layer 0's capture directory).
     pub reference: std::path::PathBuf,
     /// Valid area of the reference plane `[x_min, x_max, y_min, y_max]`, mm.
@@ -238,7 +245,10 @@ impl SensorCalibration {
                 width: self.projector_size.0,
                 height: self.projector_size.1,
                 center: Some([op.x, op.y, op.z]),
-                ..ProjectorSection::default()
+                k: self.projector.as_ref().map(|p| rows3(&p.k)),
+                dist: self.projector.as_ref().map(|p| p.dist.to_array()),
+                r: self.projector.as_ref().map(|p| rows3(&p.r)),
+                t: self.projector.as_ref().map(|p| [p.t.x, p.t.y, p.t.z]),
             },
             reference: Some(ReferenceSection {
                 capture: reference.to_string_lossy().into_owned(),
@@ -453,6 +463,7 @@ pub fn calibrate_sensor_with(
         None
     };
     let rays = RayTable::new(&camera);
+    let oc_world = camera.center();
     let [hx, hy] = session.board_half_extent();
     let extent = [-hx, hx, -hy, hy];
 
@@ -476,6 +487,45 @@ pub fn calibrate_sensor_with(
         extent,
         stride,
     )?;
+    // The full projector calibration (classical model): the board points of every used layer
+    // with their decoded projector coordinates are a 3D target for the projector as a camera.
+    let mut proj_obs: Vec<(Vec3, [f64; 2])> = Vec::new();
+    for &i in &used {
+        let d = &layers[i].decoded;
+        let Some(row) = d.row.as_ref() else { continue };
+        let h = session.layers[i].height;
+        let (w, hh) = (d.width as usize, d.height as usize);
+        let step = (stride * 4).max(1);
+        for v in (0..hh).step_by(step) {
+            for u in (0..w).step_by(step) {
+                let k = v * w + u;
+                let (c, r) = (d.col[k], row[k]);
+                if !(c.is_finite() && r.is_finite()) {
+                    continue;
+                }
+                let (x, y) = rays.get(k);
+                let dir = camera.r.transpose() * Vec3::new(x, y, 1.0);
+                let lam = (h - oc_world.z) / dir.z;
+                let p = oc_world + dir * lam;
+                if lam > 0.0
+                    && p.x >= extent[0]
+                    && p.x <= extent[1]
+                    && p.y >= extent[2]
+                    && p.y <= extent[3]
+                {
+                    proj_obs.push((p, [f64::from(c), f64::from(r)]));
+                }
+            }
+        }
+    }
+    let projector = match fit_camera(&proj_obs, projector_size.0, projector_size.1, None) {
+        Ok(p) => Some(p),
+        Err(e) => {
+            tracing::warn!(error = %e, "full projector calibration failed; the parallax model does not need it");
+            None
+        }
+    };
+    let projector_rms = projector.as_ref().map(|p| reprojection_rms(p, &proj_obs));
     progress("projector", 1, 1);
 
     // Residual per pixel.
@@ -592,6 +642,11 @@ pub fn calibrate_sensor_with(
         camera_center_sigma: uncertainty.map(|u| u.1),
         focal_sigma: uncertainty.map(|u| u.0),
         projector_center: [op.x, op.y, op.z],
+        projector_full_center: projector.as_ref().map(|p| {
+            let c = p.center();
+            [c.x, c.y, c.z]
+        }),
+        projector_reprojection_rms: projector_rms,
         projector_ray_rms: ray_rms,
         projector_rays: ray_count,
         standoff,
@@ -606,6 +661,7 @@ pub fn calibrate_sensor_with(
         camera,
         projector_size,
         projector_center: op,
+        projector,
         reference: session.layers[0].dir.clone(),
         extent,
         residual,

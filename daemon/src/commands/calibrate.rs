@@ -205,6 +205,12 @@ pub fn sensor(
         r.projector_center[0], r.projector_center[1], r.projector_center[2],
         r.projector_rays, r.projector_ray_rms
     );
+    if let (Some(c), Some(rms)) = (r.projector_full_center, r.projector_reprojection_rms) {
+        println!(
+            "full projector calibration (classical model): centre [{:.2}, {:.2}, {:.2}] mm, reprojection RMS {rms:.3} projector px",
+            c[0], c[1], c[2]
+        );
+    }
     if let (Some(sc), Some(sf)) = (r.camera_center_sigma, r.focal_sigma) {
         println!(
             "camera centre standard error [{:.2}, {:.2}, {:.2}] mm, fx ± {sf:.2} px",

@@ -162,6 +162,12 @@ pub fn closest_on_first(o1: &Vec3, d1: &Vec3, o2: &Vec3, d2: &Vec3) -> Option<(f
     Some((alpha, gap))
 }
 
+/// Whether (x, y) lies in the rectangle `[x_min, x_max, y_min, y_max]` (edges included).
+#[inline]
+pub fn in_rect(r: &[f64; 4], x: f64, y: f64) -> bool {
+    x >= r[0] && x <= r[1] && y >= r[2] && y <= r[3]
+}
+
 /// The rotation of a row-major 4×4 rigid transform as a unit quaternion.
 pub fn rotation_of(m: &[[f64; 4]; 4]) -> nalgebra::UnitQuaternion<f64> {
     nalgebra::UnitQuaternion::from_matrix(&Mat3::from_fn(|i, j| m[i][j]))

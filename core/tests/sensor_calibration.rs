@@ -144,7 +144,8 @@ fn calibrated_sensor_matches_truth_and_measures_an_unseen_scene() {
         let map: Vec<[f32; 2]> = detail
             .iter()
             .map(|&[x, y, z, m]| {
-                let inside = (x0..=x1).contains(&f64::from(x)) && (y0..=y1).contains(&f64::from(y));
+                let inside =
+                    ris_core::geometry::in_rect(&[x0, x1, y0, y1], f64::from(x), f64::from(y));
                 if z.is_finite() && inside {
                     [z - layer.height as f32, m]
                 } else {

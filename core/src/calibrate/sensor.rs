@@ -16,7 +16,7 @@ use super::lm;
 use super::session::Session;
 use crate::capture::CaptureSet;
 use crate::decode::{decode, DecodeParams, Decoded};
-use crate::geometry::{Distortion, Mat3, Pinhole, Vec3};
+use crate::geometry::{in_rect, Distortion, Mat3, Pinhole, Vec3};
 use crate::image::gaussian_blur;
 use crate::io::{npy, relative_path};
 use crate::pattern::Pattern;
@@ -464,6 +464,7 @@ pub fn calibrate_sensor_with(
     };
     let rays = RayTable::new(&camera);
     let oc_world = camera.center();
+    let r_world = camera.r.transpose();
     let [hx, hy] = session.board_half_extent();
     let extent = [-hx, hx, -hy, hy];
 
@@ -503,15 +504,9 @@ pub fn calibrate_sensor_with(
                 if !(c.is_finite() && r.is_finite()) {
                     continue;
                 }
-                let (x, y) = rays.get(k);
-                let dir = camera.r.transpose() * Vec3::new(x, y, 1.0);
-                let lam = (h - oc_world.z) / dir.z;
-                let p = oc_world + dir * lam;
-                if lam > 0.0
-                    && p.x >= extent[0]
-                    && p.x <= extent[1]
-                    && p.y >= extent[2]
-                    && p.y <= extent[3]
+                if let Some(p) = rays
+                    .on_plane(k, &oc_world, &r_world, h)
+                    .filter(|p| in_rect(&extent, p.x, p.y))
                 {
                     proj_obs.push((p, [f64::from(c), f64::from(r)]));
                 }
@@ -537,10 +532,7 @@ pub fn calibrate_sensor_with(
         let em: Vec<[f32; 2]> = detail
             .par_iter()
             .map(|&[x, y, z, m]| {
-                let inside = f64::from(x) >= extent[0]
-                    && f64::from(x) <= extent[1]
-                    && f64::from(y) >= extent[2]
-                    && f64::from(y) <= extent[3];
+                let inside = in_rect(&extent, f64::from(x), f64::from(y));
                 if z.is_finite() && inside {
                     [z - h, m]
                 } else {
@@ -1005,18 +997,12 @@ fn reference_maps(
             if !(c.is_finite() && r.is_finite()) {
                 continue;
             }
-            let (x, y) = rays.get(i);
-            let d = r_t * Vec3::new(x, y, 1.0);
-            let lam = -oc.z / d.z;
-            let p = oc + d * lam;
-            if lam <= 0.0
-                || p.x < extent[0]
-                || p.x > extent[1]
-                || p.y < extent[2]
-                || p.y > extent[3]
-            {
+            let Some(p) = rays
+                .on_plane(i, &oc, &r_t, 0.0)
+                .filter(|p| in_rect(&extent, p.x, p.y))
+            else {
                 continue;
-            }
+            };
             cols.push(PlaneSample {
                 x: p.x,
                 y: p.y,
@@ -1047,8 +1033,7 @@ fn projector_center(
 ) -> Result<(Vec3, f64, usize)> {
     let oc = camera.center();
     let r_t = camera.r.transpose();
-    let inside =
-        |x: f64, y: f64| x >= extent[0] && x <= extent[1] && y >= extent[2] && y <= extent[3];
+    let inside = |x: f64, y: f64| in_rect(&extent, x, y);
     let mut lines: Vec<(Vec3, Vec3, f64)> = Vec::new();
     for &(decoded, h) in lifted {
         let Some(row) = decoded.row.as_ref() else {
@@ -1066,13 +1051,7 @@ fn projector_center(
                     if !(c.is_finite() && r.is_finite()) {
                         return None;
                     }
-                    let (x, y) = rays.get(i);
-                    let d = r_t * Vec3::new(x, y, 1.0);
-                    let lam = (h - oc.z) / d.z;
-                    let ps = oc + d * lam;
-                    if lam <= 0.0 || !inside(ps.x, ps.y) {
-                        return None;
-                    }
+                    let ps = rays.on_plane(i, &oc, r_t, h).filter(|p| inside(p.x, p.y))?;
                     // Newton on (φ_col, φ_row)(x, y) = (c, r), from the point straight below.
                     let (mut px, mut py) = (ps.x, ps.y);
                     for _ in 0..12 {

@@ -20,7 +20,7 @@ use rayon::prelude::*;
 use crate::capture::CaptureSet;
 use crate::cloud::PointCloud;
 use crate::decode::{decode, DecodeParams, Decoded};
-use crate::geometry::{Matrix4, Pinhole, Vec3};
+use crate::geometry::{in_rect, Matrix4, Pinhole, Vec3};
 use crate::io::npy;
 use crate::pattern::CodeAxis;
 use crate::sensor::reference::{PlaneCodeMap, PlaneSample, DEFAULT_DEGREE};
@@ -395,15 +395,11 @@ fn plane_samples(
                 if !c.is_finite() {
                     return None;
                 }
-                let (x, y) = rays.get(i);
-                let d = r_t * Vec3::new(x, y, 1.0);
-                let lam = -oc.z / d.z;
-                let (px, py) = (oc.x + lam * d.x, oc.y + lam * d.y);
-                let inside =
-                    extent.is_none_or(|e| px >= e[0] && px <= e[1] && py >= e[2] && py <= e[3]);
-                (lam > 0.0 && inside).then_some(PlaneSample {
-                    x: px,
-                    y: py,
+                let p = rays.on_plane(i, &oc, r_t, 0.0)?;
+                let inside = extent.is_none_or(|e| in_rect(&e, p.x, p.y));
+                inside.then_some(PlaneSample {
+                    x: p.x,
+                    y: p.y,
                     code: f64::from(c),
                 })
             })

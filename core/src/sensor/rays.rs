@@ -3,7 +3,7 @@
 
 use rayon::prelude::*;
 
-use crate::geometry::{Pinhole, Vec3};
+use crate::geometry::{Mat3, Pinhole, Vec3};
 
 /// Undistorted normalized coordinates (x, y) of every camera pixel, row-major.
 #[derive(Clone, Debug)]
@@ -34,6 +34,16 @@ impl RayTable {
     pub fn get(&self, i: usize) -> (f64, f64) {
         let [x, y] = self.xy[i];
         (f64::from(x), f64::from(y))
+    }
+
+    /// World point where the ray of pixel `i` meets the plane z = `h`, for a camera centred at
+    /// `oc` with camera → world rotation `r_t`; `None` behind the camera.
+    #[inline]
+    pub fn on_plane(&self, i: usize, oc: &Vec3, r_t: &Mat3, h: f64) -> Option<Vec3> {
+        let (x, y) = self.get(i);
+        let d = r_t * Vec3::new(x, y, 1.0);
+        let lam = (h - oc.z) / d.z;
+        (lam > 0.0 && lam.is_finite()).then(|| oc + d * lam)
     }
 
     /// Camera-frame direction (not normalized) of pixel (u, v).

@@ -199,8 +199,8 @@ pub fn detect(
     // reach the neighbouring corners where the squares are small.
     let (cols, rows) = (board.cols as i64, board.rows as i64);
     let coarse = corners.points.clone();
-    for (k, p) in corners.points.iter_mut().enumerate() {
-        let Some(p) = p else { continue };
+    for (k, slot) in corners.points.iter_mut().enumerate() {
+        let Some(p) = *slot else { continue };
         let (i, j) = ((k % board.cols) as i64, (k / board.cols) as i64);
         let local = [(1, 0), (-1, 0), (0, 1), (0, -1)]
             .iter()
@@ -216,8 +216,15 @@ pub fn detect(
         let half = params
             .refine_half_window
             .unwrap_or_else(|| ((0.4 * local).round() as usize).clamp(2, 11));
-        if let Some(q) = refine(&img, p[0], p[1], half) {
-            *p = q;
+        // A corner whose refinement leaves its window (or the image) is reported missing
+        // rather than kept at its coarse position.
+        *slot = refine(&img, p[0], p[1], half);
+        if slot.is_none() {
+            tracing::debug!(
+                i,
+                j,
+                "chessboard corner dropped: sub-pixel refinement failed"
+            );
         }
     }
     Ok(corners)

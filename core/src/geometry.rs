@@ -162,6 +162,11 @@ pub fn closest_on_first(o1: &Vec3, d1: &Vec3, o2: &Vec3, d2: &Vec3) -> Option<(f
     Some((alpha, gap))
 }
 
+/// The rows of a 3×3 matrix, as files store it (`k`, `r`).
+pub fn rows_of(m: &Mat3) -> [[f64; 3]; 3] {
+    [0, 1, 2].map(|i| [m[(i, 0)], m[(i, 1)], m[(i, 2)]])
+}
+
 /// Whether (x, y) lies in the rectangle `[x_min, x_max, y_min, y_max]` (edges included).
 #[inline]
 pub fn in_rect(r: &[f64; 4], x: f64, y: f64) -> bool {

@@ -802,7 +802,7 @@ fn calibrate_sensor_from_a_rendered_session_and_refuse_a_thin_one() {
     ris_core::calibrate::CameraCalibration {
         width: 400,
         height: 300,
-        k: [0, 1, 2].map(|i| [c.k[(i, 0)], c.k[(i, 1)], c.k[(i, 2)]]),
+        k: ris_core::geometry::rows_of(&c.k),
         dist: c.dist.to_array(),
         rms: 0.0,
         square: 40.0,
@@ -956,5 +956,43 @@ fn camera_grab_from_the_aravis_fake_gige_camera_on_loopback() {
     assert!(
         meta.contains("Aravis Fake") && meta.matches("[[frame]]").count() == 3,
         "{meta}"
+    );
+}
+
+#[test]
+fn camera_grab_from_the_mock_writes_frames_once_and_refuses_to_overwrite() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let scene = dir.path().join("scene.toml");
+    std::fs::write(&scene, SCENE).expect("scene");
+    let out = dir.path().join("grab");
+    let args = [
+        "camera",
+        "grab",
+        "--backend",
+        "mock",
+        "--device",
+        s(&scene),
+        "--count",
+        "2",
+        "--out",
+        s(&out),
+    ];
+    let o = ris(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for i in 0..2 {
+        let img =
+            ris_core::image::GrayImage::load(&out.join(format!("frame_{i:03}.png"))).expect("png");
+        assert_eq!((img.width, img.height), (160, 120));
+        // The plane and box (albedo 0.7) under the projector's full white are well lit.
+        let mean: f32 = img.to_levels().iter().sum::<f32>() / (160.0 * 120.0);
+        assert!(mean > 60.0, "mean level {mean}");
+    }
+    let meta = std::fs::read_to_string(out.join("frames.toml")).expect("frames.toml");
+    assert_eq!(meta.matches("[[frame]]").count(), 2, "{meta}");
+    let o = ris(&args);
+    assert!(
+        !o.status.success() && stderr(&o).contains("not empty"),
+        "{}",
+        stderr(&o)
     );
 }

@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 use super::chessboard::Corners;
 use super::homography::homography;
 use super::lm;
-use crate::geometry::{Distortion, Mat3, Vec3};
+use crate::geometry::{Distortion, Mat3, Pinhole, Vec3};
 use crate::io::{read_toml, write_toml};
 use crate::{Error, Result};
 
@@ -107,9 +107,30 @@ impl CameraCalibration {
         write_toml(path, self)
     }
 
-    /// Read a camera file.
+    /// Read a camera file and check that it describes a camera.
     pub fn load(path: &Path) -> Result<CameraCalibration> {
-        read_toml(path)
+        let c: CameraCalibration = read_toml(path)?;
+        let ctx = path.display().to_string();
+        if c.width == 0 || c.height == 0 {
+            return Err(Error::invalid(&ctx, "width/height", "must be positive"));
+        }
+        let k = &c.k;
+        let form = k[1][0] == 0.0 && k[2] == [0.0, 0.0, 1.0] && k[0][0] > 0.0 && k[1][1] > 0.0;
+        if !form || k.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(Error::invalid(
+                &ctx,
+                "k",
+                "expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with finite fx, fy > 0",
+            ));
+        }
+        if let Some(i) = c.dist.iter().position(|v| !v.is_finite()) {
+            return Err(Error::invalid(
+                &ctx,
+                format!("dist[{i}]"),
+                "not a finite number",
+            ));
+        }
+        Ok(c)
     }
 
     /// The intrinsic matrix.
@@ -128,14 +149,33 @@ fn board_point(i: usize, j: usize, square: f64) -> [f64; 2] {
     [i as f64 * square, j as f64 * square]
 }
 
-/// Project a board-frame point with intrinsics `k` (fx, fy, cx, cy, k1, k2, p1, p2, k3) and a pose.
-#[inline]
-fn project(k: &[f64; 9], r: &Mat3, t: &Vec3, p: &Vec3) -> [f64; 2] {
-    let c = r * p + t;
-    let (x, y) = (c.x / c.z, c.y / c.z);
-    let d = Distortion::from_array([k[4], k[5], k[6], k[7], k[8]]);
-    let (xd, yd) = d.distort(x, y);
-    [k[0] * xd + k[2], k[1] * yd + k[3]]
+/// A camera from intrinsics `k` (fx, fy, cx, cy, k1, k2, p1, p2, k3) and a pose.
+fn pinhole(k: &[f64; 9], r: Mat3, t: Vec3, width: u32, height: u32) -> Pinhole {
+    Pinhole {
+        width,
+        height,
+        k: Mat3::new(k[0], 0.0, k[2], 0.0, k[1], k[3], 0.0, 0.0, 1.0),
+        dist: Distortion::from_array([k[4], k[5], k[6], k[7], k[8]]),
+        r,
+        t,
+    }
+}
+
+/// Append the reprojection residuals (u, v) of `obs` seen by `cam` to `out`; a point behind the
+/// camera counts as far off.
+pub(crate) fn push_residuals(cam: &Pinhole, obs: &[(Vec3, [f64; 2])], out: &mut Vec<f64>) {
+    for (p, q) in obs {
+        let (u, v) = cam.project(p).unwrap_or((1e6, 1e6));
+        out.push(u - q[0]);
+        out.push(v - q[1]);
+    }
+}
+
+/// RMS reprojection error of `obs` seen by `cam`, pixels.
+pub(crate) fn reprojection_rms(cam: &Pinhole, obs: &[(Vec3, [f64; 2])]) -> f64 {
+    let mut r = Vec::with_capacity(2 * obs.len());
+    push_residuals(cam, obs, &mut r);
+    (r.iter().map(|v| v * v).sum::<f64>() / obs.len().max(1) as f64).sqrt()
 }
 
 /// Initial fx, fy with the principal point at (cx, cy) from each view's homography: the first two
@@ -335,11 +375,7 @@ fn solve(
         let k = intrinsics(p);
         for (v, obs) in observations.iter().enumerate() {
             let (r, t) = pose(p, v);
-            for (q, m) in obs {
-                let e = project(&k, &r, &t, q);
-                out.push(e[0] - m[0]);
-                out.push(e[1] - m[1]);
-            }
+            push_residuals(&pinhole(&k, r, t, width, height), obs, out);
         }
     };
     let mut scale = vec![
@@ -372,20 +408,14 @@ fn solve(
     let mut results = Vec::with_capacity(views.len());
     for (v, obs) in observations.iter().enumerate() {
         let (r, t) = pose(&p, v);
-        let sq: f64 = obs
-            .iter()
-            .map(|(q, m)| {
-                let e = project(&k, &r, &t, q);
-                (e[0] - m[0]).powi(2) + (e[1] - m[1]).powi(2)
-            })
-            .sum();
-        total += sq;
+        let rms = reprojection_rms(&pinhole(&k, r, t, width, height), obs);
+        total += rms * rms * obs.len() as f64;
         count += obs.len();
         let o = 9 + 6 * v;
         results.push(ViewResult {
             image: views[v].name.clone(),
             corners: obs.len(),
-            rms: (sq / obs.len() as f64).sqrt(),
+            rms,
             rvec: [p[o], p[o + 1], p[o + 2]],
             t: [t.x, t.y, t.z],
         });
@@ -427,12 +457,12 @@ mod tests {
             .enumerate()
             .map(|(n, (rv, t))| {
                 let r = Rotation3::from_scaled_axis(Vec3::from(*rv)).into_inner();
-                let t = Vec3::from(*t);
+                let cam = pinhole(k, r, Vec3::from(*t), 640, 480);
                 let points = (0..board.len())
                     .map(|c| {
                         let b = board_point(c % 9, c / 9, 25.0);
-                        let e = project(k, &r, &t, &Vec3::new(b[0], b[1], 0.0));
-                        Some([e[0] + noise * rnd(), e[1] + noise * rnd()])
+                        let (u, v) = cam.project(&Vec3::new(b[0], b[1], 0.0)).expect("in front");
+                        Some([u + noise * rnd(), v + noise * rnd()])
                     })
                     .collect();
                 BoardView {

@@ -354,7 +354,10 @@ fn x_junction(img: &Image, x: f64, y: f64, radius: f64, min_contrast: f32) -> Op
     }
     // Compare each sample with the one a quarter turn on: light against dark sectors alternate
     // in sign four times around an X-junction, also where a soft shadow dims part of it.
-    let diff: Vec<f32> = (0..N).map(|k| ring[k] - ring[(k + N / 4) % N]).collect();
+    let mut diff = [0.0f32; N];
+    for (k, d) in diff.iter_mut().enumerate() {
+        *d = ring[k] - ring[(k + N / 4) % N];
+    }
     let peak = diff.iter().fold(0.0f32, |m, d| m.max(d.abs()));
     if peak < min_contrast {
         return None;
@@ -367,17 +370,19 @@ fn x_junction(img: &Image, x: f64, y: f64, radius: f64, min_contrast: f32) -> Op
     if asymmetry > 0.35 * amplitude {
         return None;
     }
+    // Signs of the samples clear of the band around zero, counted cyclically.
     let band = 0.2 * peak;
-    let classes: Vec<i8> = diff
-        .iter()
-        .filter(|d| d.abs() > band)
-        .map(|&d| if d > 0.0 { 1 } else { -1 })
-        .collect();
-    if classes.len() < N / 2 {
+    let mut classes = [0i8; N];
+    let mut n = 0;
+    for d in diff.iter().filter(|d| d.abs() > band) {
+        classes[n] = if *d > 0.0 { 1 } else { -1 };
+        n += 1;
+    }
+    if n < N / 2 {
         return None;
     }
-    let changes = (0..classes.len())
-        .filter(|&k| classes[k] != classes[(k + 1) % classes.len()])
+    let changes = (0..n)
+        .filter(|&k| classes[k] != classes[(k + 1) % n])
         .count();
     if changes != 4 {
         return None;

@@ -11,12 +11,13 @@ use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
 
+use super::camera::{push_residuals, reprojection_rms, CameraCalibration};
 use super::chessboard::{detect, DetectParams};
 use super::lm;
 use super::session::Session;
 use crate::capture::CaptureSet;
 use crate::decode::{decode, DecodeParams, Decoded};
-use crate::geometry::{in_rect, Distortion, Mat3, Pinhole, Vec3};
+use crate::geometry::{in_rect, rows_of, Distortion, Mat3, Pinhole, Vec3};
 use crate::image::gaussian_blur;
 use crate::io::{npy, relative_path};
 use crate::pattern::Pattern;
@@ -49,10 +50,10 @@ pub struct SensorParams {
     pub sample_stride: usize,
     /// Smoothing (σ, pixels) of the per-layer height errors before the per-pixel fit.
     pub residual_smoothing: f32,
-    /// Known camera intrinsics (K, distortion), e.g. from `ris calibrate camera` with tilted
-    /// views: the layers then only fix the pose, which a small board decides far better than
-    /// focal length and distance together.
-    pub intrinsics: Option<(Mat3, Distortion)>,
+    /// Known camera intrinsics from `ris calibrate camera` with tilted views: the layers then
+    /// only fix the pose, which a small board decides far better than focal length and
+    /// distance together. Its image size must be the session's.
+    pub intrinsics: Option<CameraCalibration>,
 }
 
 impl Default for SensorParams {
@@ -245,9 +246,9 @@ impl SensorCalibration {
                 width: self.projector_size.0,
                 height: self.projector_size.1,
                 center: Some([op.x, op.y, op.z]),
-                k: self.projector.as_ref().map(|p| rows3(&p.k)),
+                k: self.projector.as_ref().map(|p| rows_of(&p.k)),
                 dist: self.projector.as_ref().map(|p| p.dist.to_array()),
-                r: self.projector.as_ref().map(|p| rows3(&p.r)),
+                r: self.projector.as_ref().map(|p| rows_of(&p.r)),
                 t: self.projector.as_ref().map(|p| [p.t.x, p.t.y, p.t.z]),
             },
             reference: Some(ReferenceSection {
@@ -305,7 +306,21 @@ pub fn calibrate_sensor_with(
             (capture.layout.width, capture.layout.height),
         );
         match size {
-            None => size = Some(dims),
+            None => {
+                if let Some(c) = &params.intrinsics {
+                    if (c.width, c.height) != (dims.0, dims.1) {
+                        return Err(Error::invalid(
+                            &dir,
+                            "size",
+                            format!(
+                                "images are {}x{} but the camera calibration is for {}x{}",
+                                dims.0, dims.1, c.width, c.height
+                            ),
+                        ));
+                    }
+                }
+                size = Some(dims)
+            }
             Some(s) if s != dims => {
                 return Err(Error::invalid(
                     &dir,
@@ -412,7 +427,11 @@ pub fn calibrate_sensor_with(
             .iter()
             .flat_map(|&i| layers[i].corners.iter().flatten().copied())
             .collect();
-        let camera = fit_camera(&obs, width, height, params.intrinsics.as_ref())?;
+        let known = params
+            .intrinsics
+            .as_ref()
+            .map(|c| (c.k_matrix(), c.distortion()));
+        let camera = fit_camera(&obs, width, height, known.as_ref())?;
         // The layer whose height deviates most, relative to its gate.
         let mut worst: Option<(usize, f64, f64)> = None;
         for &i in &used {
@@ -627,7 +646,7 @@ pub fn calibrate_sensor_with(
     let report = SensorReport {
         session: session.path.display().to_string(),
         layers: reports,
-        k: rows3(&camera.k),
+        k: rows_of(&camera.k),
         dist: camera.dist.to_array(),
         reprojection_rms: camera_rms,
         camera_center: [oc.x, oc.y, oc.z],
@@ -668,10 +687,6 @@ fn gate(name: &str, value: f64, limit: f64) -> Gate {
         limit,
         pass: value.is_finite() && value <= limit,
     }
-}
-
-fn rows3(m: &Mat3) -> [[f64; 3]; 3] {
-    [0, 1, 2].map(|i| [m[(i, 0)], m[(i, 1)], m[(i, 2)]])
 }
 
 /// Camera by normalised DLT on non-coplanar points (Eq. 3.25), decomposed into K [R | t] by RQ,
@@ -775,18 +790,7 @@ pub(crate) fn fit_camera(
     let rv = Rotation3::from_matrix(&rot).scaled_axis();
     let residuals = |cam: &Pinhole, out: &mut Vec<f64>| {
         out.clear();
-        for (p, q) in obs {
-            match cam.project(p) {
-                Some((u, v)) => {
-                    out.push(u - q[0]);
-                    out.push(v - q[1]);
-                }
-                None => {
-                    out.push(1e6);
-                    out.push(1e6);
-                }
-            }
-        }
+        push_residuals(cam, obs, out);
     };
     if let Some((kf, df)) = intrinsics {
         let unpack = |x: &DVector<f64>| Pinhole {
@@ -894,12 +898,7 @@ pub(crate) fn camera_uncertainty(
     ];
     let cov = lm::covariance(&x, &scale, |x, out| {
         out.clear();
-        let c = unpack(x);
-        for (p, q) in obs {
-            let (u, v) = c.project(p).unwrap_or((1e6, 1e6));
-            out.push(u - q[0]);
-            out.push(v - q[1]);
-        }
+        push_residuals(&unpack(x), obs, out);
     })?;
     // Propagate to the centre C = −Rᵀ t through its numerical Jacobian in the pose parameters.
     let c0 = unpack(&x).center();
@@ -913,22 +912,11 @@ pub(crate) fn camera_uncertainty(
             g[(i, j)] = dc[i];
         }
     }
-    let sc = &g * cov.clone() * g.transpose();
+    let sc = &g * &cov * g.transpose();
     Some((
         cov[(0, 0)].max(0.0).sqrt(),
         [0, 1, 2].map(|i| sc[(i, i)].max(0.0).sqrt()),
     ))
-}
-
-fn reprojection_rms(camera: &Pinhole, obs: &[(Vec3, [f64; 2])]) -> f64 {
-    let s: f64 = obs
-        .iter()
-        .map(|(p, q)| match camera.project(p) {
-            Some((u, v)) => (u - q[0]).powi(2) + (v - q[1]).powi(2),
-            None => 1e12,
-        })
-        .sum();
-    (s / obs.len().max(1) as f64).sqrt()
 }
 
 /// The board height that best explains a layer's corners with `camera` (Gauss–Newton in one

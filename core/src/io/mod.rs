@@ -56,6 +56,41 @@ pub fn create_dir(path: &Path) -> Result<()> {
     std::fs::create_dir_all(path).map_err(|e| Error::io(path, e))
 }
 
+/// Create `out` (absent or empty) by writing into a temporary sibling and renaming it into place,
+/// so that a failed or interrupted run leaves nothing that looks complete.
+pub fn write_dir_atomically(out: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+    if out.exists()
+        && std::fs::read_dir(out)
+            .map_err(|e| Error::io(out, e))?
+            .next()
+            .is_some()
+    {
+        return Err(Error::invalid(
+            out.display(),
+            "output",
+            "directory exists and is not empty; refusing to overwrite",
+        ));
+    }
+    let parent = out
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    create_dir(parent)?;
+    let name = out
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "sim".into());
+    let tmp = parent.join(format!(".{name}.partial-{}", std::process::id()));
+    if let Err(e) = write(&tmp) {
+        let _ = std::fs::remove_dir_all(&tmp);
+        return Err(e);
+    }
+    if out.exists() {
+        std::fs::remove_dir(out).map_err(|e| Error::io(out, e))?;
+    }
+    std::fs::rename(&tmp, out).map_err(|e| Error::io(out, e))
+}
+
 /// `to` relative to directory `from` (both must exist), for paths stored in files that must keep
 /// working when the whole tree moves.
 pub fn relative_path(from: &Path, to: &Path) -> Result<PathBuf> {

@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::geometry::{Distortion, Mat3, Matrix4, Pinhole, Vec3};
+use crate::geometry::{rows_of, Distortion, Mat3, Matrix4, Pinhole, Vec3};
 use crate::io::{read_toml, write_toml};
 use crate::{Error, Result};
 
@@ -236,20 +236,12 @@ impl SensorFile {
         CameraSection {
             width: c.width,
             height: c.height,
-            k: rows(&c.k),
+            k: rows_of(&c.k),
             dist: c.dist.to_array(),
-            r: rows(&c.r),
+            r: rows_of(&c.r),
             t: [c.t.x, c.t.y, c.t.z],
         }
     }
-}
-
-fn rows(m: &Mat3) -> [[f64; 3]; 3] {
-    [
-        [m[(0, 0)], m[(0, 1)], m[(0, 2)]],
-        [m[(1, 0)], m[(1, 1)], m[(1, 2)]],
-        [m[(2, 0)], m[(2, 1)], m[(2, 2)]],
-    ]
 }
 
 fn finite(ctx: &str, field: &str, values: &[f64]) -> Result<()> {

@@ -25,10 +25,10 @@ use std::path::{Path, PathBuf};
 
 use crate::capture::CaptureSet;
 use crate::image::GrayImage;
-use crate::io::{create_dir, npy, write_toml};
+use crate::io::{create_dir, npy, write_dir_atomically, write_toml};
 use crate::pattern::{CodeAxis, CodeLayout, Pattern, ProjectionMask};
 use crate::sensor::{ProjectorSection, ReferenceSection, SensorFile};
-use crate::{Error, Result};
+use crate::Result;
 
 /// A scene with its light transport computed, ready to render frames.
 pub struct Simulator {
@@ -169,48 +169,13 @@ pub fn simulate(
     out: &Path,
     progress: &(dyn Fn(&str, usize, usize) + Sync),
 ) -> Result<SimOutput> {
-    atomic_dir(out, |tmp| write_simulation(scene, tmp, progress))?;
+    write_dir_atomically(out, |tmp| write_simulation(scene, tmp, progress))?;
     Ok(SimOutput {
         capture: out.join("capture"),
         reference: out.join("reference"),
         sensor: out.join("sensor.toml"),
         truth: out.join("truth"),
     })
-}
-
-/// Create `out` (absent or empty) by writing into a temporary sibling and renaming it into place,
-/// so that a failed or interrupted run leaves nothing that looks complete.
-pub(crate) fn atomic_dir(out: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
-    if out.exists()
-        && std::fs::read_dir(out)
-            .map_err(|e| Error::io(out, e))?
-            .next()
-            .is_some()
-    {
-        return Err(Error::invalid(
-            out.display(),
-            "output",
-            "directory exists and is not empty; refusing to overwrite",
-        ));
-    }
-    let parent = out
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    create_dir(parent)?;
-    let name = out
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "sim".into());
-    let tmp = parent.join(format!(".{name}.partial-{}", std::process::id()));
-    if let Err(e) = write(&tmp) {
-        let _ = std::fs::remove_dir_all(&tmp);
-        return Err(e);
-    }
-    if out.exists() {
-        std::fs::remove_dir(out).map_err(|e| Error::io(out, e))?;
-    }
-    std::fs::rename(&tmp, out).map_err(|e| Error::io(out, e))
 }
 
 fn write_simulation(

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use super::scene::{CalibrationSection, Scene};
 use super::shapes::{Object, Shape};
 use super::texture::Texture;
-use super::{atomic_dir, sensor_file, Simulator};
+use super::{sensor_file, Simulator};
 use crate::calibrate::{BoardSection, LayerSection, SessionFile};
 use crate::geometry::Vec3;
 use crate::sensor::ReferenceSection;
@@ -130,7 +130,7 @@ pub fn simulate_session(
         )
     })?;
     let (board, table) = check(scene, c)?;
-    atomic_dir(out, |dir| {
+    crate::io::write_dir_atomically(out, |dir| {
         crate::io::create_dir(dir)?;
         let mut layers = Vec::new();
         for (i, &h) in c.heights.iter().enumerate() {

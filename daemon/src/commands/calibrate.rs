@@ -145,18 +145,7 @@ pub fn sensor(
     if let Some(path) = camera {
         let c = CameraCalibration::load(path)
             .with_context(|| format!("reading camera file {}", path.display()))?;
-        let first = ris_core::capture::CaptureSet::load(&s.layers[0].dir)
-            .with_context(|| format!("reading {}", s.layers[0].dir.display()))?;
-        anyhow::ensure!(
-            (c.width, c.height) == (first.width, first.height),
-            "{}: the camera file is for {}x{} images, the session's are {}x{}",
-            path.display(),
-            c.width,
-            c.height,
-            first.width,
-            first.height
-        );
-        params.intrinsics = Some((c.k_matrix(), c.distortion()));
+        params.intrinsics = Some(c);
     }
     let bar = crate::progress::bar(s.layers.len() as u64 + 2, "layers");
     let cal = calibrate_sensor(&s, &params, &|stage, _, _| {

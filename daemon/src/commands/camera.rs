@@ -6,7 +6,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use ris_core::io::{create_dir, write_toml};
+use ris_core::io::{create_dir, write_dir_atomically, write_toml};
 use ris_core::pattern::Pattern;
 use ris_core::sim::{Scene, Simulator};
 use ris_drivers::{Camera, Frame, Projector, Slide, TriggerMode};
@@ -116,7 +116,7 @@ fn open(backend: Backend, device: &str) -> Result<Opened> {
 }
 
 /// `ris camera grab`: `count` frames (software-triggered or free-running) as 8/16-bit PNGs plus
-/// `frames.toml`, written into `out`.
+/// `frames.toml`, written into `out` (absent or empty) only once every frame has arrived.
 pub fn grab(
     backend: Backend,
     device: &str,
@@ -139,10 +139,8 @@ pub fn grab(
     };
     cam.set_trigger(trigger.clone())?;
     cam.start()?;
-    create_dir(out)?;
     let bar = crate::progress::bar(count as u64, "frames");
     let mut frames = Vec::with_capacity(count);
-    let mut meta = Vec::with_capacity(count);
     for i in 0..count {
         if software_trigger {
             cam.trigger()?;
@@ -150,37 +148,42 @@ pub fn grab(
         let f = cam
             .next_frame(timeout)
             .with_context(|| format!("frame {} of {count}", i + 1))?;
-        let file = format!("frame_{i:03}.png");
-        f.image
-            .save_png(&out.join(&file))
-            .with_context(|| format!("writing {file}"))?;
-        meta.push(FrameMeta {
-            file,
-            frame_id: f.frame_id,
-            host_ns: f.host_ns,
-            device_ns: f.device_ns,
-            exposure_us: f.exposure_us,
-            gain_db: f.gain_db,
-            bit_depth: f.bit_depth,
-        });
         frames.push(f);
         bar.inc(1);
     }
     bar.finish_and_clear();
     cam.stop()?;
     let info = cam.info().clone();
-    write_toml(
-        &out.join("frames.toml"),
-        &GrabMeta {
-            backend: format!("{backend:?}").to_lowercase(),
-            device: info.id.clone(),
-            model: info.model.clone(),
-            width: info.width,
-            height: info.height,
-            trigger: format!("{trigger:?}"),
-            frame: meta,
-        },
-    )?;
+    // Every frame first, then the directory at once: an interrupted grab leaves nothing.
+    let meta = GrabMeta {
+        backend: format!("{backend:?}").to_lowercase(),
+        device: info.id.clone(),
+        model: info.model.clone(),
+        width: info.width,
+        height: info.height,
+        trigger: format!("{trigger:?}"),
+        frame: frames
+            .iter()
+            .enumerate()
+            .map(|(i, f)| FrameMeta {
+                file: format!("frame_{i:03}.png"),
+                frame_id: f.frame_id,
+                host_ns: f.host_ns,
+                device_ns: f.device_ns,
+                exposure_us: f.exposure_us,
+                gain_db: f.gain_db,
+                bit_depth: f.bit_depth,
+            })
+            .collect(),
+    };
+    write_dir_atomically(out, |dir| {
+        create_dir(dir)?;
+        for (f, m) in frames.iter().zip(&meta.frame) {
+            f.image.save_png(&dir.join(&m.file))?;
+        }
+        write_toml(&dir.join("frames.toml"), &meta)
+    })
+    .with_context(|| format!("writing {}", out.display()))?;
     println!(
         "{count} frames of {}x{} from {} ({}) in {}",
         info.width,

@@ -22,7 +22,7 @@ def main():
     session = zenoh.open(conf)
 
     lock = threading.Lock()
-    states, clouds = {}, {}
+    states, clouds, reports = {}, {}, {}
 
     def on_sample(sample):
         key = str(sample.key_expr)
@@ -32,6 +32,8 @@ def main():
                 states.setdefault(parts[3], []).append(json.loads(sample.payload.to_bytes()))
             elif parts[-2] == "cloud":
                 clouds.setdefault(parts[3], {})[parts[-1]] = sample.payload.to_bytes()
+            elif parts[-1] == "report":
+                reports[parts[3]] = json.loads(sample.payload.to_bytes())
 
     sub = session.declare_subscriber(f"ris/{cell}/scans/**", on_sample)
 
@@ -58,9 +60,15 @@ def main():
     print("malformed request refused:", err)
     ok, err = ask(json.dumps({"sensors": ["nope"]}))
     assert ok is None and "nope" in err, (ok, err)
+    ok, err = ask(json.dumps({"part": "nope"}))
+    assert ok is None and "nope" in err, (ok, err)
 
-    for n in range(2):
-        ok, err = ask(json.dumps({"tag": f"client test {n}"}))
+    # The cell defines one part: the first scan inspects it by default, the second is told not to.
+    for n, inspect in enumerate([None, False]):
+        request = {"tag": f"client test {n}"}
+        if inspect is not None:
+            request["inspect"] = inspect
+        ok, err = ask(json.dumps(request))
         assert err is None, err
         assert ok["state"] == "accepted", ok
         scan_id = ok["scan_id"]
@@ -71,6 +79,20 @@ def main():
         time.sleep(0.5)
         with lock:
             got = clouds.get(scan_id, {})
+            report = reports.get(scan_id)
+        if inspect is None:
+            assert "inspecting" in names, names
+            # The simulated panel is the CAD surface: the part passes with the sensors' noise.
+            assert report is not None, "no report published"
+            st = report["statistics"]
+            assert report["verdict"] == "pass", report["reasons"]
+            assert abs(st["mean"]) < 0.05 and st["rms"] < 0.15, st
+            assert st["within_tolerance"] > 0.999 and st["points"] > 1_000_000, st
+            assert seq[-1]["inspection"]["verdict"] == "pass", seq[-1]
+            print(f"inspection: {report['verdict']}, RMS {st['rms']:.3f} mm, "
+                  f"{st['points']} points, {st['beyond_cad']} beyond the CAD")
+        else:
+            assert "inspecting" not in names and report is None, names
         for s in sensors + ["merged"]:
             assert s in got, f"no cloud {s} for {scan_id}: {sorted(got)}"
             head = got[s][:200]

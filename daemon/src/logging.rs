@@ -1,12 +1,60 @@
-//! Logging set-up shared by the binaries: `tracing` to stderr, filtered by `RIS_LOG`.
+//! Logging set-up shared by the binaries: `tracing` filtered by `RIS_LOG`, to the systemd
+//! journal (structured fields, priorities) when stderr is connected to it, else to stderr.
 
-/// Install a stderr subscriber; `RIS_LOG` (e.g. `debug`, `ris_core=trace`) overrides `default`.
+use tracing_subscriber::layer::SubscriberExt;
+use tracing_subscriber::util::SubscriberInitExt;
+
+/// Install the subscriber; `RIS_LOG` (e.g. `debug`, `ris_core=trace`) overrides `default`.
 pub fn init(default: &str) {
     let filter = tracing_subscriber::EnvFilter::try_from_env("RIS_LOG")
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    if stderr_is_journal() {
+        if let Ok(journal) = tracing_journald::layer() {
+            let _ = tracing_subscriber::registry()
+                .with(filter)
+                .with(journal)
+                .try_init();
+            return;
+        }
+    }
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
         .with_target(false)
         .try_init();
+}
+
+/// Whether systemd connected stderr to the journal: `JOURNAL_STREAM` names the device and
+/// inode of that stream, and stderr is still it (not redirected by a child's caller).
+fn stderr_is_journal() -> bool {
+    use std::os::unix::fs::MetadataExt;
+    let Ok(value) = std::env::var("JOURNAL_STREAM") else {
+        return false;
+    };
+    let Ok(meta) = std::fs::metadata("/proc/self/fd/2") else {
+        return false;
+    };
+    journal_stream_is(&value, meta.dev(), meta.ino())
+}
+
+/// Whether a `JOURNAL_STREAM` value (`DEVICE:INODE`, decimal) names the stream `dev`/`ino`.
+fn journal_stream_is(value: &str, dev: u64, ino: u64) -> bool {
+    value
+        .split_once(':')
+        .and_then(|(d, i)| Some((d.parse::<u64>().ok()?, i.parse::<u64>().ok()?)))
+        .is_some_and(|(d, i)| d == dev && i == ino)
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn journal_stream_names_device_and_inode() {
+        use super::journal_stream_is;
+        assert!(journal_stream_is("9:123456", 9, 123_456));
+        assert!(!journal_stream_is("9:123456", 9, 123_457));
+        assert!(!journal_stream_is("8:123456", 9, 123_456));
+        for bad in ["", "9", "9:", ":1", "x:1", "9:1:2"] {
+            assert!(!journal_stream_is(bad, 9, 1), "{bad:?}");
+        }
+    }
 }

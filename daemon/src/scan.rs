@@ -11,8 +11,12 @@ use std::time::Instant;
 
 use anyhow::{anyhow, Context, Result};
 use ris_core::capture::CaptureSet;
-use ris_core::cloud::Merger;
+use ris_core::cloud::{Merger, PointCloud};
 use ris_core::decode::{decode, DecodeParams};
+use ris_core::inspect::{
+    inspect, load_datums, write_deviation_ply, write_deviation_png, Datum, InspectParams,
+};
+use ris_core::mesh::{SignedDistance, TriangleMesh};
 use ris_core::pattern::CodeLayout;
 use ris_core::sensor::Reconstructor;
 use ris_core::sim::{Scene, Simulator};
@@ -21,7 +25,7 @@ use ris_drivers::sequence::{acquire, SequenceParams};
 use ris_drivers::{Camera, Slide};
 use serde::Serialize;
 
-use crate::config::{Backend, CellConfig};
+use crate::config::{Backend, CellConfig, PartConfig};
 
 /// Radius (mm) within which points of different sensors are duplicates in the merge.
 const MERGE_RADIUS: f64 = 0.5;
@@ -63,6 +67,11 @@ pub enum ScanState {
     },
     /// Sensor clouds are merged.
     Merging,
+    /// The merged cloud is registered to the part's CAD model and its deviations measured.
+    Inspecting {
+        /// Part id.
+        part: String,
+    },
     /// Finished.
     Done,
     /// Failed.
@@ -79,10 +88,23 @@ pub struct SensorTiming {
     pub sensor: String,
     /// Acquisition start and end, s since the scan started.
     pub acquire: (f64, f64),
-    /// Decoding + reconstruction start and end, s since the scan started.
+    /// Decoding, reconstruction and merge start and end, s since the scan started.
     pub compute: (f64, f64),
+    /// Seconds decoding, reconstructing and merging into the cell cloud.
+    pub stages: StageSeconds,
     /// Points reconstructed.
     pub points: usize,
+}
+
+/// Seconds of one sensor's compute stages.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct StageSeconds {
+    /// Gray-code decoding to sub-pixel correspondences.
+    pub decode: f64,
+    /// Parallax reconstruction.
+    pub reconstruct: f64,
+    /// Merge into the cell cloud.
+    pub merge: f64,
 }
 
 /// The result of a scan.
@@ -98,10 +120,69 @@ pub struct ScanReport {
     pub merge: (f64, f64),
     /// Points in the merged cloud.
     pub merged_points: usize,
-    /// Compute time after the last frame, s.
+    /// Compute time after the last frame until the merged cloud is written, s.
     pub compute_after_last_frame: f64,
+    /// The inspection, when the scan inspected a part.
+    pub inspection: Option<InspectionSummary>,
     /// Total, s.
     pub total: f64,
+}
+
+/// The verdict of a scan's inspection (the full report is `report.json` beside the clouds).
+#[derive(Clone, Debug, Serialize)]
+pub struct InspectionSummary {
+    /// Part id.
+    pub part: String,
+    /// `pass` or `fail`.
+    pub verdict: String,
+    /// Why it failed.
+    pub reasons: Vec<String>,
+    /// Mean signed deviation, mm.
+    pub mean: f64,
+    /// RMS deviation, mm.
+    pub rms: f64,
+    /// Fraction of points within tolerance.
+    pub within_tolerance: f64,
+    /// Inspection start and end, s since the scan started.
+    pub seconds: (f64, f64),
+}
+
+/// A part ready to inspect: its CAD surface indexed for distance queries (built once).
+pub struct Part {
+    /// Id.
+    pub id: String,
+    cad: SignedDistance,
+    datums: Vec<Datum>,
+    tolerance: f64,
+}
+
+impl Part {
+    /// Load the CAD model and datums of `config` and index the surface.
+    pub fn prepare(config: &PartConfig) -> Result<Part> {
+        let mesh = TriangleMesh::load_stl(&config.cad)
+            .with_context(|| format!("part {}: CAD {}", config.id, config.cad.display()))?;
+        let datums = match &config.datums {
+            Some(d) => load_datums(d).with_context(|| format!("part {}: datums", config.id))?,
+            None => Vec::new(),
+        };
+        Ok(Part {
+            id: config.id.clone(),
+            cad: SignedDistance::new(mesh),
+            datums,
+            tolerance: config.tolerance,
+        })
+    }
+}
+
+/// What one scan does besides acquiring every selected pair.
+#[derive(Clone, Copy, Default)]
+pub struct ScanOptions<'a> {
+    /// Sensors to scan (`None`: all).
+    pub only: Option<&'a [String]>,
+    /// Keep the captured images under `captures/`.
+    pub keep_captures: bool,
+    /// Inspect the merged cloud against this part.
+    pub part: Option<&'a Part>,
 }
 
 /// Prepare every pair of `config`: for mock pairs, ray-cast the scene and record and fit the
@@ -150,17 +231,15 @@ pub fn prepare(config: &CellConfig, seed: u64) -> Result<Vec<Pair>> {
     Ok(pairs)
 }
 
-/// Scan with every pair (or those named in `only`) and write the result into
+/// Scan with the pairs `options` selects and write the result into
 /// `<data_dir>/scans/<scan_id>`; `state` is told every stage; `cancelled` is asked between
 /// exposure groups. On failure the `.partial` directory is removed.
-#[allow(clippy::too_many_arguments)]
 pub fn run(
     cell: &str,
     pairs: &mut [Pair],
-    only: Option<&[String]>,
+    options: ScanOptions,
     data_dir: &Path,
     scan_id: &str,
-    keep_captures: bool,
     cancelled: &(dyn Fn() -> bool + Sync),
     state: &(dyn Fn(&ScanState) + Sync),
 ) -> Result<(ScanReport, PathBuf)> {
@@ -177,17 +256,10 @@ pub fn run(
     std::fs::create_dir_all(&partial).with_context(|| format!("creating {}", partial.display()))?;
     let selected: Vec<bool> = pairs
         .iter()
-        .map(|p| only.is_none_or(|names| names.contains(&p.name)))
+        .map(|p| options.only.is_none_or(|names| names.contains(&p.name)))
         .collect();
     let result = scan_into(
-        cell,
-        pairs,
-        &selected,
-        &partial,
-        scan_id,
-        keep_captures,
-        cancelled,
-        state,
+        cell, pairs, &selected, &partial, scan_id, options, cancelled, state,
     );
     match result {
         Ok(report) => {
@@ -213,7 +285,7 @@ fn scan_into(
     selected: &[bool],
     dir: &Path,
     scan_id: &str,
-    keep_captures: bool,
+    options: ScanOptions,
     cancelled: &(dyn Fn() -> bool + Sync),
     state: &(dyn Fn(&ScanState) + Sync),
 ) -> Result<ScanReport> {
@@ -243,9 +315,20 @@ fn scan_into(
         })
         .collect();
     let mut last_frame = 0.0f64;
-    type Computed = (Merger, Vec<(usize, usize, f64, f64)>);
-    let computed: Computed = std::thread::scope(|scope| -> Result<Computed> {
+    type Computed = (Merger, Vec<(usize, usize, (f64, f64), StageSeconds)>);
+    let (merged, done, merge_time) = std::thread::scope(|scope| {
         let recs = &recs;
+        // Sensor clouds are written (and synced) on their own thread, off the critical path:
+        // the merge needs them only in memory.
+        let (wtx, wrx) = mpsc::channel::<(String, PointCloud)>();
+        let writer = scope.spawn(move || -> Result<()> {
+            for (name, cloud) in wrx {
+                cloud
+                    .write_ply(&dir.join(format!("{name}.ply")))
+                    .with_context(|| format!("writing the cloud of {name}"))?;
+            }
+            Ok(())
+        });
         let worker = scope.spawn(move || -> Result<Computed> {
             let mut merger = Merger::new(MERGE_RADIUS);
             let mut done = Vec::new();
@@ -255,15 +338,26 @@ fn scan_into(
                     sensor: name.clone(),
                 });
                 let c0 = secs();
-                let cloud = decode(&capture, &DecodeParams::default())
-                    .map_err(anyhow::Error::from)
-                    .and_then(|d| rec.reconstruct(&d).map_err(anyhow::Error::from))
+                let decoded = decode(&capture, &DecodeParams::default())
+                    .with_context(|| format!("sensor {name}: decoding"))?;
+                drop(capture);
+                let c1 = secs();
+                let cloud = rec
+                    .reconstruct(&decoded)
                     .with_context(|| format!("sensor {name}: reconstruction"))?;
-                cloud
-                    .write_ply(&dir.join(format!("{name}.ply")))
-                    .with_context(|| format!("writing the cloud of {name}"))?;
+                let c2 = secs();
                 merger.add(&cloud, to_common);
-                done.push((i, cloud.len(), c0, secs()));
+                let c3 = secs();
+                let stages = StageSeconds {
+                    decode: c1 - c0,
+                    reconstruct: c2 - c1,
+                    merge: c3 - c2,
+                };
+                done.push((i, cloud.len(), (c0, c3), stages));
+                if wtx.send((name.clone(), cloud)).is_err() {
+                    // The writer stopped on an error; it is reported when joined.
+                    break;
+                }
             }
             Ok((merger, done))
         });
@@ -317,7 +411,7 @@ fn scan_into(
                     let acq = acq?;
                     timings[i].acquire = (a0, a1);
                     last_frame = last_frame.max(a1);
-                    if keep_captures {
+                    if options.keep_captures {
                         acq.capture
                             .save(&dir.join("captures").join(&pairs[i].name))
                             .with_context(|| {
@@ -335,22 +429,32 @@ fn scan_into(
         drop(tx);
         let computed = worker
             .join()
-            .map_err(|_| anyhow!("the compute worker panicked"))?;
-        acquired?;
-        computed
+            .map_err(|_| anyhow!("the compute worker panicked"));
+        let merged = (|| -> Result<_> {
+            acquired?;
+            let (merger, done) = computed??;
+            state(&ScanState::Merging);
+            let m0 = secs();
+            let (merged, _) = merger.finish();
+            merged
+                .write_ply(&dir.join("merged.ply"))
+                .context("writing the merged cloud")?;
+            Ok((merged, done, (m0, secs())))
+        })();
+        writer
+            .join()
+            .map_err(|_| anyhow!("the cloud writer panicked"))??;
+        merged
     })?;
-    let (merger, done) = computed;
-    for (i, points, c0, c1) in done {
-        timings[i].compute = (c0, c1);
+    for (i, points, compute, stages) in done {
+        timings[i].compute = compute;
+        timings[i].stages = stages;
         timings[i].points = points;
     }
-    state(&ScanState::Merging);
-    let m0 = secs();
-    let (merged, _) = merger.finish();
-    merged
-        .write_ply(&dir.join("merged.ply"))
-        .context("writing the merged cloud")?;
-    let m1 = secs();
+    let inspection = match options.part {
+        Some(part) => Some(inspect_part(part, &merged, dir, &secs, state)?),
+        None => None,
+    };
     let report = ScanReport {
         scan_id: scan_id.to_string(),
         cell: cell.to_string(),
@@ -360,9 +464,10 @@ fn scan_into(
             .filter(|(_, s)| **s)
             .map(|(t, _)| t)
             .collect(),
-        merge: (m0, m1),
+        merge: merge_time,
         merged_points: merged.len(),
-        compute_after_last_frame: m1 - last_frame,
+        compute_after_last_frame: merge_time.1 - last_frame,
+        inspection,
         total: secs(),
     };
     ris_core::io::write_atomic(
@@ -371,6 +476,56 @@ fn scan_into(
     )
     .context("writing scan.json")?;
     Ok(report)
+}
+
+/// Register the merged cloud (cell frame, which the cell calibration puts on the part's
+/// nominal pose) to the part and write `deviation.ply`, `deviation.png` and `report.json`.
+fn inspect_part(
+    part: &Part,
+    merged: &PointCloud,
+    dir: &Path,
+    secs: &dyn Fn() -> f64,
+    state: &(dyn Fn(&ScanState) + Sync),
+) -> Result<InspectionSummary> {
+    state(&ScanState::Inspecting {
+        part: part.id.clone(),
+    });
+    let i0 = secs();
+    let points: Vec<[f64; 3]> = merged.points.iter().map(|p| p.map(f64::from)).collect();
+    let r = inspect(
+        &points,
+        &part.cad,
+        &InspectParams {
+            tolerance: part.tolerance,
+            datums: part.datums.clone(),
+            init: Some(ris_core::register::Pose::identity()),
+            ..InspectParams::default()
+        },
+    )
+    .with_context(|| format!("inspecting part {}", part.id))?;
+    write_deviation_ply(&dir.join("deviation.ply"), &r.points, &r.deviations)?;
+    write_deviation_png(
+        &dir.join("deviation.png"),
+        &r.points,
+        &r.deviations,
+        part.tolerance,
+    )?;
+    ris_core::io::write_atomic(
+        &dir.join("report.json"),
+        serde_json::to_string_pretty(&r.report)?.as_bytes(),
+    )
+    .context("writing report.json")?;
+    let s = &r.report.statistics;
+    tracing::info!(part = %part.id, verdict = %r.report.verdict, rms = s.rms, "inspected");
+    Ok(InspectionSummary {
+        part: part.id.clone(),
+        verdict: r.report.verdict.clone(),
+        reasons: r.report.reasons.clone(),
+        mean: s.mean,
+        rms: s.rms,
+        within_tolerance: s.within_tolerance,
+        seconds: (i0, secs()),
+    })
 }
 
 /// Remove unfinished scans left by a crash (`*.partial`), and old scans beyond `keep` (0:

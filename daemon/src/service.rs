@@ -16,7 +16,7 @@ use zenoh::{Session, Wait};
 
 use crate::config::CellConfig;
 use crate::notify;
-use crate::scan::{self, Pair, ScanState};
+use crate::scan::{self, Pair, Part, ScanOptions, ScanState};
 
 /// A scan request (`ris/<cell>/scan` payload; every field optional).
 #[derive(Clone, Debug, Default, Deserialize)]
@@ -28,10 +28,11 @@ pub struct ScanRequest {
     /// Sensors to scan (default all).
     #[serde(default)]
     pub sensors: Option<Vec<String>>,
-    /// Inspect against the part.
+    /// Inspect the merged cloud (default: when the cell defines exactly one part, or `part`
+    /// names one).
     #[serde(default)]
     pub inspect: Option<bool>,
-    /// Part id.
+    /// Part id (required to inspect when the cell defines several).
     #[serde(default)]
     pub part: Option<String>,
     /// Free text stored with the scan.
@@ -57,10 +58,13 @@ pub struct Status {
 struct Job {
     scan_id: String,
     sensors: Option<Vec<String>>,
+    /// Index of the part to inspect.
+    part: Option<usize>,
 }
 
-/// Validate a request against the cell; the error is the reply's reason.
-pub fn validate(req: &ScanRequest, config: &CellConfig) -> Result<(), String> {
+/// Validate a request against the cell and choose the part to inspect (an index into the
+/// cell's parts); the error is the reply's reason.
+pub fn validate(req: &ScanRequest, config: &CellConfig) -> Result<Option<usize>, String> {
     match req.mode.as_deref() {
         None | Some("gray") => {}
         Some(m @ ("adaptive" | "single-shot")) => {
@@ -80,15 +84,28 @@ pub fn validate(req: &ScanRequest, config: &CellConfig) -> Result<(), String> {
             }
         }
     }
-    if let Some(p) = &req.part {
-        if !config.parts.iter().any(|c| c.id == *p) {
-            return Err(format!("no part {p:?} in cell {:?}", config.name));
-        }
+    let named = match &req.part {
+        Some(p) => Some(
+            config
+                .parts
+                .iter()
+                .position(|c| c.id == *p)
+                .ok_or_else(|| format!("no part {p:?} in cell {:?}", config.name))?,
+        ),
+        None => None,
+    };
+    match (req.inspect, named, config.parts.len()) {
+        (Some(false), Some(_), _) => Err("`part` is named but `inspect` is false".into()),
+        (Some(false), None, _) => Ok(None),
+        (_, Some(i), _) => Ok(Some(i)),
+        (_, None, 1) => Ok(Some(0)),
+        (Some(true), None, 0) => Err(format!("cell {:?} defines no part to inspect", config.name)),
+        (Some(true), None, n) => Err(format!(
+            "cell {:?} defines {n} parts; name one in `part`",
+            config.name
+        )),
+        (None, None, _) => Ok(None),
     }
-    if req.inspect == Some(true) {
-        return Err("inspection is not wired into this risd build yet".into());
-    }
-    Ok(())
 }
 
 fn zenoh_config(config: &CellConfig) -> Result<zenoh::Config> {
@@ -148,9 +165,16 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
         .map_err(|e| anyhow!("declaring ris/{cell}/health: {e}"))?;
 
     let prep_config = config.clone();
-    let pairs = tokio::task::spawn_blocking(move || scan::prepare(&prep_config, 1))
-        .await
-        .context("preparing the pairs")??;
+    let (pairs, parts) = tokio::task::spawn_blocking(move || -> Result<_> {
+        let parts = prep_config
+            .parts
+            .iter()
+            .map(Part::prepare)
+            .collect::<Result<Vec<_>>>()?;
+        Ok((scan::prepare(&prep_config, 1)?, parts))
+    })
+    .await
+    .context("preparing the pairs")??;
     set_state(&status, "ready");
 
     let (tx, rx) = mpsc::sync_channel::<Job>(config.workers.queue);
@@ -166,7 +190,7 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
         let keep = config.storage.keep_captures;
         std::thread::spawn(move || {
             worker_loop(
-                rx, pairs, &session, &status, &stopping, &cell, &data_dir, keep,
+                rx, pairs, &parts, &session, &status, &stopping, &cell, &data_dir, keep,
             )
         })
     };
@@ -260,12 +284,13 @@ async fn handle_scan(
         }
     };
     let outcome = req
-        .and_then(|r| validate(&r, config).map(|()| r))
-        .and_then(|r| {
+        .and_then(|r| validate(&r, config).map(|part| (r, part)))
+        .and_then(|(r, part)| {
             let scan_id = scan::new_scan_id(counter);
             match tx.try_send(Job {
                 scan_id: scan_id.clone(),
                 sensors: r.sensors.clone(),
+                part,
             }) {
                 Ok(()) => Ok((scan_id, r)),
                 Err(mpsc::TrySendError::Full(_)) => Err(format!(
@@ -309,6 +334,7 @@ fn publish(session: &Session, cell: &str, scan_id: &str, state: &ScanState) {
 fn worker_loop(
     rx: mpsc::Receiver<Job>,
     mut pairs: Vec<Pair>,
+    parts: &[Part],
     session: &Session,
     status: &Mutex<Status>,
     stopping: &AtomicBool,
@@ -333,13 +359,17 @@ fn worker_loop(
             );
             continue;
         }
+        let options = ScanOptions {
+            only: job.sensors.as_deref(),
+            keep_captures,
+            part: job.part.and_then(|i| parts.get(i)),
+        };
         let result = scan::run(
             cell,
             &mut pairs,
-            job.sensors.as_deref(),
+            options,
             data_dir,
             &id,
-            keep_captures,
             &|| stopping.load(Ordering::SeqCst),
             &|s| {
                 if !matches!(s, ScanState::Done) {
@@ -353,22 +383,18 @@ fn worker_loop(
                     report.sensors.iter().map(|s| s.sensor.clone()).collect();
                 names.push("merged".into());
                 for name in names {
-                    let path = dir.join(format!("{name}.ply"));
-                    match std::fs::read(&path) {
-                        Ok(bytes) => {
-                            let key = format!("ris/{cell}/scans/{id}/cloud/{name}");
-                            if let Err(e) = session
-                                .put(&key, bytes)
-                                .congestion_control(CongestionControl::Block)
-                                .wait()
-                            {
-                                tracing::warn!(%key, error = %e, "cloud publication failed");
-                            }
-                        }
-                        Err(e) => {
-                            tracing::warn!(path = %path.display(), error = %e, "cloud unreadable")
-                        }
-                    }
+                    publish_file(
+                        session,
+                        &format!("ris/{cell}/scans/{id}/cloud/{name}"),
+                        &dir.join(format!("{name}.ply")),
+                    );
+                }
+                if report.inspection.is_some() {
+                    publish_file(
+                        session,
+                        &format!("ris/{cell}/scans/{id}/report"),
+                        &dir.join("report.json"),
+                    );
                 }
                 let done = serde_json::json!({
                     "state": "done",
@@ -376,6 +402,7 @@ fn worker_loop(
                     "compute_after_last_frame": report.compute_after_last_frame,
                     "sensors": report.sensors,
                     "merge": report.merge,
+                    "inspection": report.inspection,
                     "total": report.total,
                 });
                 let key = format!("ris/{cell}/scans/{id}/state");
@@ -402,6 +429,22 @@ fn worker_loop(
     }
 }
 
+/// Publish a result file of a scan (large payloads block rather than drop).
+fn publish_file(session: &Session, key: &str, path: &Path) {
+    match std::fs::read(path) {
+        Ok(bytes) => {
+            if let Err(e) = session
+                .put(key, bytes)
+                .congestion_control(CongestionControl::Block)
+                .wait()
+            {
+                tracing::warn!(%key, error = %e, "publication failed");
+            }
+        }
+        Err(e) => tracing::warn!(path = %path.display(), error = %e, "result file unreadable"),
+    }
+}
+
 /// The stored results of finished scans: (key, file) for `<id>/report` (the scan's JSON) and
 /// `<id>/cloud/<sensor>`, and the ids. Blocking directory walk: run off the async runtime.
 fn stored_items(cell: &str, data_dir: &Path) -> (Vec<String>, Vec<(String, PathBuf)>) {
@@ -416,10 +459,11 @@ fn stored_items(cell: &str, data_dir: &Path) -> (Vec<String>, Vec<(String, PathB
         if id.ends_with(".partial") || !dir.join("scan.json").is_file() {
             continue;
         }
-        items.push((
-            format!("ris/{cell}/scans/{id}/report"),
-            dir.join("scan.json"),
-        ));
+        // The inspection report when the scan inspected a part, else the scan's summary.
+        let report = Some(dir.join("report.json"))
+            .filter(|p| p.is_file())
+            .unwrap_or_else(|| dir.join("scan.json"));
+        items.push((format!("ris/{cell}/scans/{id}/report"), report));
         if let Ok(files) = std::fs::read_dir(&dir) {
             for f in files.flatten() {
                 let name = f.file_name().to_string_lossy().into_owned();
@@ -466,5 +510,42 @@ async fn handle_store(q: &Query, cell: &str, data_dir: &Path) {
                 tracing::warn!(path = %path.display(), error = %err, "stored file unreadable")
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cell(parts: &[&str]) -> CellConfig {
+        let mut text = String::from(
+            "[cell]\nname = \"t\"\n[[sensor]]\nname = \"s1\"\nbackend = \"mock\"\nscene = \"s.toml\"\n",
+        );
+        for p in parts {
+            text += &format!("[[part]]\nid = \"{p}\"\ncad = \"{p}.stl\"\ntolerance = 0.5\n");
+        }
+        CellConfig::parse(&text, Path::new("."), "test").expect("config")
+    }
+
+    fn req(json: &str) -> ScanRequest {
+        serde_json::from_str(json).expect("request")
+    }
+
+    #[test]
+    fn the_part_to_inspect_follows_the_request_and_the_cell() {
+        let none = cell(&[]);
+        let one = cell(&["door"]);
+        let two = cell(&["door", "hood"]);
+        assert_eq!(validate(&req("{}"), &none), Ok(None));
+        assert_eq!(validate(&req("{}"), &one), Ok(Some(0)));
+        assert_eq!(validate(&req("{}"), &two), Ok(None));
+        assert_eq!(validate(&req(r#"{"inspect": false}"#), &one), Ok(None));
+        assert_eq!(validate(&req(r#"{"part": "hood"}"#), &two), Ok(Some(1)));
+        let err = |r: &str, c: &CellConfig| validate(&req(r), c).expect_err(r);
+        assert!(err(r#"{"inspect": true}"#, &none).contains("no part"));
+        assert!(err(r#"{"inspect": true}"#, &two).contains("name one"));
+        assert!(err(r#"{"part": "roof"}"#, &two).contains("\"roof\""));
+        assert!(err(r#"{"part": "door", "inspect": false}"#, &two).contains("inspect"));
+        assert!(err(r#"{"mode": "fast"}"#, &one).contains("fast"));
     }
 }

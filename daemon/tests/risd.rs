@@ -5,6 +5,7 @@ use std::path::Path;
 use std::process::Command;
 
 use ris_daemon::config::CellConfig;
+use ris_daemon::scan::ScanOptions;
 
 fn config_dir() -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../config")
@@ -148,6 +149,23 @@ fn once_scans_the_builtin_mock_cell() {
         t(0, "compute", 0) < t(1, "acquire", 1),
         "no overlap of compute and acquisition"
     );
+    // The cell's part is that panel (its CAD vertices lie on the surface), so the inspection
+    // passes with the sensors' noise and reports it.
+    let cad = ris_core::mesh::TriangleMesh::load_stl(&config_dir().join("mock-cell/panel.stl"))
+        .expect("cad");
+    assert!(cad
+        .vertices
+        .iter()
+        .all(|v| (v.z + v.x * v.x / 5000.0 + v.y * v.y / 8000.0).abs() < 1e-3));
+    let inspection = &report["inspection"];
+    assert_eq!(inspection["verdict"], "pass", "{inspection}");
+    let rms = inspection["rms"].as_f64().expect("rms");
+    assert!(rms > 0.0 && rms < 0.15, "deviation RMS {rms} mm");
+    let full: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(scan.join("report.json")).expect("report.json"))
+            .expect("json");
+    assert_eq!(full["verdict"], "pass");
+    assert!(scan.join("deviation.png").is_file() && scan.join("deviation.ply").is_file());
 }
 
 #[test]
@@ -171,10 +189,9 @@ fn a_fault_in_one_pair_fails_that_scan_and_the_next_succeeds() {
     let err = ris_daemon::scan::run(
         "mock",
         &mut pairs,
-        None,
+        ScanOptions::default(),
         data.path(),
         "a",
-        false,
         &|| false,
         &record,
     )
@@ -199,10 +216,9 @@ fn a_fault_in_one_pair_fails_that_scan_and_the_next_succeeds() {
     let (report, dir) = ris_daemon::scan::run(
         "mock",
         &mut pairs,
-        None,
+        ScanOptions::default(),
         data.path(),
         "b",
-        false,
         &|| false,
         &|_| {},
     )
@@ -214,10 +230,12 @@ fn a_fault_in_one_pair_fails_that_scan_and_the_next_succeeds() {
     let (report, _) = ris_daemon::scan::run(
         "mock",
         &mut pairs,
-        Some(&only),
+        ScanOptions {
+            only: Some(&only),
+            ..ScanOptions::default()
+        },
         data.path(),
         "c",
-        false,
         &|| false,
         &|_| {},
     )

@@ -100,6 +100,16 @@ fn independent_zenoh_client_scans_twice_then_sigterm_stops_cleanly() {
         .flatten()
         .collect();
     assert_eq!(scans.len(), 2);
+    let inspected = scans
+        .iter()
+        .filter(|s| {
+            s.path().join("report.json").is_file() && s.path().join("deviation.png").is_file()
+        })
+        .count();
+    assert_eq!(
+        inspected, 1,
+        "the first scan inspects the part, the second does not"
+    );
     for s in scans {
         for f in [
             "s1.ply",

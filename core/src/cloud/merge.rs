@@ -1,12 +1,10 @@
 //! Merging sensor clouds into the cell frame, de-duplicating where sensors overlap.
 
-use std::collections::HashSet;
-
 use rayon::prelude::*;
 
 use super::PointCloud;
 use crate::geometry::Matrix4;
-use crate::spatial::KdTree;
+use crate::spatial::{KdTree, Occupancy};
 
 /// How many points each input contributed and how many overlap duplicates were dropped.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -74,39 +72,27 @@ impl Merger {
             .collect();
         // Existing points from earlier sensors near each new point. Only merged points in the
         // coarse cells around this sensor's points can be within `radius`: the tree holds those.
-        let cell = (radius * 16.0).max(4.0);
-        let key = |p: &[f64; 3]| {
-            [
-                (p[0] / cell).floor() as i64,
-                (p[1] / cell).floor() as i64,
-                (p[2] / cell).floor() as i64,
-            ]
-        };
-        let mut around: HashSet<[i64; 3]> = HashSet::new();
-        let mut seen: HashSet<[i64; 3]> = HashSet::new();
-        for p in &pts {
-            let k = key(p);
-            if seen.insert(k) {
-                for dz in -1..=1 {
-                    for dy in -1..=1 {
-                        for dx in -1..=1 {
-                            around.insert([k[0] + dx, k[1] + dy, k[2] + dz]);
-                        }
-                    }
-                }
-            }
-        }
+        let around = Occupancy::around(&pts, (radius * 16.0).max(4.0), 1 << 24);
         let (candidates, existing): (Vec<usize>, Vec<[f64; 3]>) = merged
             .points
-            .iter()
+            .par_iter()
             .enumerate()
-            .map(|(j, p)| (j, [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])]))
-            .filter(|(_, p)| around.contains(&key(p)))
+            .map(|(j, p)| (j, p.map(f64::from)))
+            .filter(|(_, p)| around.contains(p))
             .unzip();
         let tree = KdTree::new(&existing);
+        // Most new points are nowhere near an existing one: a finer occupancy of the
+        // candidates spares them the tree search.
+        let near_existing = Occupancy::around(&existing, (radius * 4.0).max(1.0), 1 << 24);
         let near: Vec<Option<usize>> = pts
             .par_iter()
-            .map(|p| tree.nearest_within(p, r2).map(|(j, _)| candidates[j]))
+            .map(|p| {
+                if near_existing.contains(p) {
+                    tree.nearest_within(p, r2).map(|(j, _)| candidates[j])
+                } else {
+                    None
+                }
+            })
             .collect();
         let mut replaced = vec![false; merged.len()];
         for (i, p) in pts.iter().enumerate() {

@@ -136,7 +136,7 @@ pub fn inspect(
         datum_fit(&fit, cad, start, params)
     };
     let points = to_cad(cloud, &pose);
-    let deviations = cad.query_all(&points);
+    let deviations = cad.deviations(&points);
     let report = report::build(
         &points,
         &deviations,

@@ -29,6 +29,9 @@ pub struct Statistics {
     pub p95: f64,
     /// Fraction of points within ± tolerance.
     pub within_tolerance: f64,
+    /// Points beyond the CAD surface's open boundary (no nominal there), left out of the
+    /// statistics and the verdict.
+    pub beyond_cad: usize,
 }
 
 /// How well a datum region sits on its nominal surface.
@@ -98,6 +101,7 @@ pub(super) fn build(
 ) -> Report {
     let tol = params.tolerance;
     let mut sorted: Vec<f64> = dev.iter().copied().filter(|d| d.is_finite()).collect();
+    let beyond_cad = dev.len() - sorted.len();
     sorted.sort_by(f64::total_cmp);
     let n = sorted.len().max(1) as f64;
     let mean = sorted.iter().sum::<f64>() / n;
@@ -113,6 +117,7 @@ pub(super) fn build(
         p50: percentile(&sorted, 0.5),
         p95: percentile(&sorted, 0.95),
         within_tolerance: sorted.iter().filter(|d| d.abs() <= tol).count() as f64 / n,
+        beyond_cad,
     };
     let mut reasons = Vec::new();
     let datums: Vec<DatumResidual> = params

@@ -23,7 +23,10 @@ pub struct SignedDistance {
     bvh: Bvh,
     face_normals: Vec<Vec3>,
     vertex_normals: Vec<Vec3>,
-    edge_normals: HashMap<(u32, u32), Vec3>,
+    /// Summed face normals of each edge and how many triangles share it (1: open boundary).
+    edge_normals: HashMap<(u32, u32), (Vec3, u32)>,
+    /// Vertices on an open boundary edge.
+    boundary_vertex: Vec<bool>,
 }
 
 /// The result of one query.
@@ -37,6 +40,9 @@ pub struct Closest {
     pub triangle: u32,
     /// Unit outward normal of that triangle.
     pub normal: Vec3,
+    /// The closest point is on an open boundary of the surface (a sheet's rim): the point
+    /// lies beyond the modelled surface rather than on or off it.
+    pub beyond_boundary: bool,
 }
 
 impl SignedDistance {
@@ -45,7 +51,7 @@ impl SignedDistance {
         let n = mesh.triangles.len();
         let mut face_normals = Vec::with_capacity(n);
         let mut vertex_normals = vec![Vec3::zeros(); mesh.vertices.len()];
-        let mut edge_normals: HashMap<(u32, u32), Vec3> = HashMap::with_capacity(n * 3 / 2);
+        let mut edge_normals: HashMap<(u32, u32), (Vec3, u32)> = HashMap::with_capacity(n * 3 / 2);
         for (t, tri) in mesh.triangles.iter().enumerate() {
             let c = mesh.corners(t);
             let nrm = (c[1] - c[0]).cross(&(c[2] - c[0]));
@@ -60,7 +66,16 @@ impl SignedDistance {
                     vertex_normals[tri[k] as usize] += nrm * angle;
                 }
                 let key = edge_key(tri[k], tri[(k + 1) % 3]);
-                *edge_normals.entry(key).or_insert_with(Vec3::zeros) += nrm;
+                let e = edge_normals.entry(key).or_insert((Vec3::zeros(), 0));
+                e.0 += nrm;
+                e.1 += 1;
+            }
+        }
+        let mut boundary_vertex = vec![false; mesh.vertices.len()];
+        for (&(a, b), &(_, count)) in &edge_normals {
+            if count == 1 {
+                boundary_vertex[a as usize] = true;
+                boundary_vertex[b as usize] = true;
             }
         }
         SignedDistance {
@@ -68,6 +83,7 @@ impl SignedDistance {
             face_normals,
             vertex_normals,
             edge_normals,
+            boundary_vertex,
         }
     }
 
@@ -81,14 +97,18 @@ impl SignedDistance {
         let (tri, point, feature, d2) = self.bvh.closest(p, closest_on_triangle)?;
         let mesh = self.bvh.mesh();
         let ids = mesh.triangles[tri as usize];
-        let normal = match feature {
-            Feature::Face => self.face_normals[tri as usize],
+        let (normal, beyond_boundary) = match feature {
+            Feature::Face => (self.face_normals[tri as usize], false),
             Feature::Edge(k) => self
                 .edge_normals
                 .get(&edge_key(ids[k as usize], ids[(k as usize + 1) % 3]))
-                .copied()
-                .unwrap_or(self.face_normals[tri as usize]),
-            Feature::Vertex(k) => self.vertex_normals[ids[k as usize] as usize],
+                .map_or((self.face_normals[tri as usize], false), |&(n, count)| {
+                    (n, count == 1)
+                }),
+            Feature::Vertex(k) => {
+                let v = ids[k as usize] as usize;
+                (self.vertex_normals[v], self.boundary_vertex[v])
+            }
         };
         let sign = if (p - point).dot(&normal) >= 0.0 {
             1.0
@@ -100,6 +120,7 @@ impl SignedDistance {
             point,
             triangle: tri,
             normal: self.face_normals[tri as usize],
+            beyond_boundary,
         })
     }
 
@@ -108,6 +129,19 @@ impl SignedDistance {
         points
             .par_iter()
             .map(|p| self.query(&Vec3::from(*p)).map_or(f64::NAN, |c| c.distance))
+            .collect()
+    }
+
+    /// Deviations for inspection: signed distances, NaN where a point lies beyond the
+    /// surface's open boundary (the CAD does not model it there, e.g. past a panel's rim).
+    pub fn deviations(&self, points: &[[f64; 3]]) -> Vec<f64> {
+        points
+            .par_iter()
+            .map(|p| {
+                self.query(&Vec3::from(*p))
+                    .filter(|c| !c.beyond_boundary)
+                    .map_or(f64::NAN, |c| c.distance)
+            })
             .collect()
     }
 }
@@ -285,5 +319,36 @@ mod tests {
         let v = mesh.vertices[5];
         assert!(sd.query(&(v * 1.1)).expect("q").distance > 0.0);
         assert!(sd.query(&(v * 0.9)).expect("q").distance < 0.0);
+    }
+
+    #[test]
+    fn points_past_a_sheets_rim_are_beyond_its_boundary() {
+        let sheet = TriangleMesh::height_field(10, 10, (-50.0, 50.0), (-50.0, 50.0), |_, _| 0.0);
+        let sd = SignedDistance::new(sheet);
+        let at = |x: f64, y: f64, z: f64| sd.query(&Vec3::new(x, y, z)).expect("closest");
+        // Above and below the interior, including over interior edges and vertices.
+        for (x, y, z) in [
+            (3.0, 7.0, 2.0),
+            (0.0, 0.0, -1.5),
+            (10.0, 10.0, 0.3),
+            (49.0, 0.0, 1.0),
+        ] {
+            let c = at(x, y, z);
+            assert!(!c.beyond_boundary, "({x}, {y}, {z})");
+            assert!(
+                (c.distance - z).abs() < 1e-9,
+                "({x}, {y}, {z}): {}",
+                c.distance
+            );
+        }
+        // Past the rim (an edge) and past a corner (a vertex).
+        assert!(at(51.0, 0.0, -2.0).beyond_boundary);
+        assert!(at(55.0, -60.0, 0.5).beyond_boundary);
+        let dev = sd.deviations(&[[0.0, 0.0, 0.2], [52.0, 3.0, -1.0]]);
+        assert!((dev[0] - 0.2).abs() < 1e-9 && dev[1].is_nan(), "{dev:?}");
+        // A closed surface has no boundary.
+        let ball = SignedDistance::new(sphere(50.0, 12));
+        let c = ball.query(&Vec3::new(0.0, 80.0, 0.0)).expect("closest");
+        assert!(!c.beyond_boundary);
     }
 }

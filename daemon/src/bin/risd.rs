@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::Parser;
 use ris_daemon::config::{CellConfig, MOCK_CELL};
-use ris_daemon::scan;
+use ris_daemon::scan::{self, Part, ScanOptions};
 
 #[derive(Parser)]
 #[command(name = "risd", version, about = "RIS cell daemon")]
@@ -130,27 +130,58 @@ fn main() -> Result<()> {
     }
     tracing::info!(cell = %config.name, sensors = config.sensors.len(), "preparing the pairs");
     let mut pairs = scan::prepare(&config, 1)?;
+    // The part is inspected when the cell defines exactly one (as a request without fields).
+    let part = match config.parts.as_slice() {
+        [p] => Some(Part::prepare(p)?),
+        _ => None,
+    };
     let id = scan::new_scan_id(0);
+    let options = ScanOptions {
+        only: None,
+        keep_captures: config.storage.keep_captures,
+        part: part.as_ref(),
+    };
     let (report, dir) = scan::run(
         &config.name,
         &mut pairs,
-        None,
+        options,
         data_dir,
         &id,
-        config.storage.keep_captures,
         &|| false,
         &|s| tracing::debug!(state = ?s, "scan state"),
     )?;
     for s in &report.sensors {
         println!(
-            "{}: {} points (acquired {:.2}–{:.2} s, reconstructed {:.2}–{:.2} s)",
-            s.sensor, s.points, s.acquire.0, s.acquire.1, s.compute.0, s.compute.1
+            "{}: {} points (acquired {:.2}–{:.2} s, computed {:.2}–{:.2} s: decode {:.2} s, reconstruct {:.2} s, merge {:.2} s)",
+            s.sensor,
+            s.points,
+            s.acquire.0,
+            s.acquire.1,
+            s.compute.0,
+            s.compute.1,
+            s.stages.decode,
+            s.stages.reconstruct,
+            s.stages.merge
         );
     }
     println!(
-        "scan {} of cell {}: {} merged points, {:.2} s of computation after the last frame, {:.1} s in all",
-        report.scan_id, report.cell, report.merged_points, report.compute_after_last_frame, report.total
+        "scan {} of cell {}: {} merged points (written in {:.2}–{:.2} s), {:.2} s of computation after the last frame, {:.1} s in all",
+        report.scan_id, report.cell, report.merged_points, report.merge.0, report.merge.1, report.compute_after_last_frame, report.total
     );
+    if let Some(i) = &report.inspection {
+        println!(
+            "part {}: {} (deviation mean {:+.3} mm, RMS {:.3} mm, {:.1} % within tolerance; {:.1} s)",
+            i.part,
+            i.verdict.to_uppercase(),
+            i.mean,
+            i.rms,
+            100.0 * i.within_tolerance,
+            i.seconds.1 - i.seconds.0
+        );
+        for r in &i.reasons {
+            println!("  - {r}");
+        }
+    }
     println!("wrote {}", dir.display());
     Ok(())
 }

@@ -71,6 +71,18 @@ fn independent_zenoh_client_scans_twice_then_sigterm_stops_cleanly() {
         .expect("client");
     let out = String::from_utf8_lossy(&client.stdout).into_owned();
     eprintln!("{out}{}", String::from_utf8_lossy(&client.stderr));
+    // Our own client: `ris scan` writes what it receives; a refused request fails clearly.
+    let received = tempfile::tempdir().expect("tmp");
+    let ris_scan = |extra: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_ris"))
+            .args(["scan", "--connect", &endpoint, "--cell", "mock", "--out"])
+            .arg(received.path())
+            .args(extra)
+            .output()
+            .expect("ris scan")
+    };
+    let scan_out = ris_scan(&["--sensor", "s1", "--sensor", "s2", "--tag", "ris scan"]);
+    let refused = ris_scan(&["--sensor", "s9"]);
     let t = Instant::now();
     signal(risd.id(), "-TERM");
     let status = loop {
@@ -90,16 +102,56 @@ fn independent_zenoh_client_scans_twice_then_sigterm_stops_cleanly() {
     );
     assert!(out.contains("1 passed, 0 failed"), "{out}");
     assert!(status.success(), "risd exit {status:?}; log: {lines:#?}");
+    let text = String::from_utf8_lossy(&scan_out.stdout).into_owned();
+    assert!(
+        scan_out.status.success(),
+        "ris scan: {text}{}",
+        String::from_utf8_lossy(&scan_out.stderr)
+    );
+    assert!(text.contains("inspection: PASS"), "{text}");
+    let got: Vec<_> = std::fs::read_dir(received.path())
+        .expect("received")
+        .flatten()
+        .map(|e| e.path())
+        .collect();
+    assert_eq!(got.len(), 1, "{got:?}");
+    for f in ["s1.ply", "s2.ply", "merged.ply", "report.json", "scan.json"] {
+        assert!(
+            got[0].join(f).is_file(),
+            "{f} missing in {}",
+            got[0].display()
+        );
+    }
+    assert!(
+        !got[0].join("s3.ply").exists(),
+        "only s1 and s2 were asked for"
+    );
+    let merged = ris_core::cloud::PointCloud::read_ply(&got[0].join("merged.ply")).expect("ply");
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(got[0].join("report.json")).expect("report"))
+            .expect("json");
+    assert_eq!(report["verdict"], "pass");
+    assert!(
+        merged.len() > 500_000
+            && report["statistics"]["points"].as_u64() <= Some(merged.len() as u64),
+        "{} merged points",
+        merged.len()
+    );
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        !refused.status.success() && err.contains("refused") && err.contains("s9"),
+        "{err}"
+    );
     eprintln!(
         "risd stopped {:.1} s after SIGTERM",
         t.elapsed().as_secs_f64()
     );
-    // Both scans are stored complete.
+    // The three scans (two of the Python client, one of `ris scan`) are stored complete.
     let scans: Vec<_> = std::fs::read_dir(data.path().join("scans"))
         .expect("scans")
         .flatten()
         .collect();
-    assert_eq!(scans.len(), 2);
+    assert_eq!(scans.len(), 3);
     let inspected = scans
         .iter()
         .filter(|s| {
@@ -107,18 +159,11 @@ fn independent_zenoh_client_scans_twice_then_sigterm_stops_cleanly() {
         })
         .count();
     assert_eq!(
-        inspected, 1,
-        "the first scan inspects the part, the second does not"
+        inspected, 2,
+        "the client's first scan and `ris scan` inspect the part, the client's second does not"
     );
     for s in scans {
-        for f in [
-            "s1.ply",
-            "s2.ply",
-            "s3.ply",
-            "s4.ply",
-            "merged.ply",
-            "scan.json",
-        ] {
+        for f in ["s1.ply", "s2.ply", "merged.ply", "scan.json"] {
             assert!(
                 s.path().join(f).is_file(),
                 "{f} missing in {}",

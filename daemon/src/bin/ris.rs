@@ -252,6 +252,37 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Ask a running risd for a scan, follow its progress and write the clouds and report
+    /// into OUT/<scan id>/ (exit status 3 when the inspected part fails)
+    Scan {
+        /// Zenoh endpoint of the daemon.
+        #[arg(long, default_value = "tcp/127.0.0.1:7447")]
+        connect: Vec<String>,
+        /// Cell name.
+        #[arg(long, default_value = "mock")]
+        cell: String,
+        /// Scan mode (gray, adaptive, single-shot); the daemon's default when omitted.
+        #[arg(long)]
+        mode: Option<String>,
+        /// Sensors to scan (repeat; default all).
+        #[arg(long = "sensor")]
+        sensors: Vec<String>,
+        /// Part to inspect (default: the cell's only part, if it has one).
+        #[arg(long)]
+        part: Option<String>,
+        /// Do not inspect.
+        #[arg(long, conflicts_with = "part")]
+        no_inspect: bool,
+        /// Free text stored with the scan.
+        #[arg(long)]
+        tag: Option<String>,
+        /// Give up when the scan has not finished after this many seconds.
+        #[arg(long, default_value_t = 300)]
+        timeout_s: u64,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Inspect a cloud against its CAD model: deviation map, report and pass/fail verdict
     /// (exit status 3 when the part fails).
     Inspect {
@@ -421,6 +452,44 @@ fn main() -> Result<()> {
         }
         Command::Simulate { scene, out } => {
             commands::simulate::run(&scene, &out)?;
+        }
+        Command::Scan {
+            connect,
+            cell,
+            mode,
+            sensors,
+            part,
+            no_inspect,
+            tag,
+            timeout_s,
+            out,
+        } => {
+            let r = commands::scan::run(&commands::scan::ScanArgs {
+                connect,
+                cell,
+                mode,
+                sensors,
+                inspect: no_inspect.then_some(false),
+                part,
+                tag,
+                out,
+                timeout: std::time::Duration::from_secs(timeout_s),
+            })?;
+            println!(
+                "scan {}: {} merged points, {:.2} s of computation after the last frame",
+                r.scan_id,
+                r.done["merged_points"],
+                r.done["compute_after_last_frame"]
+                    .as_f64()
+                    .unwrap_or(f64::NAN)
+            );
+            if let Some(v) = &r.verdict {
+                println!("inspection: {}", v.to_uppercase());
+            }
+            println!("wrote {}", r.dir.display());
+            if r.verdict.as_deref() == Some("fail") {
+                std::process::exit(3);
+            }
         }
         Command::Inspect {
             cloud,

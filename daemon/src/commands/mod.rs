@@ -11,6 +11,7 @@ pub mod patterns;
 pub mod precision;
 pub mod reconstruct;
 pub mod register;
+pub mod scan;
 pub mod simulate;
 
 use std::path::PathBuf;

@@ -1,0 +1,329 @@
+//! `ris scan`: the client of a running `risd` (SPEC §12). It asks `ris/<cell>/scan` for a
+//! scan, follows the scan's state publications with a progress bar, and writes what it
+//! receives (sensor and merged clouds, the inspection report, the final state) into
+//! `<out>/<scan id>/`, fetching from the daemon's store anything the live stream missed.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{anyhow, bail, Context, Result};
+use serde_json::Value;
+
+/// What to ask for and where to write it.
+pub struct ScanArgs {
+    /// Zenoh endpoints of the daemon (e.g. `tcp/127.0.0.1:7447`).
+    pub connect: Vec<String>,
+    /// Cell name.
+    pub cell: String,
+    /// Request fields (SPEC §12); `None` leaves the daemon's default.
+    pub mode: Option<String>,
+    /// Sensors to scan (empty: all).
+    pub sensors: Vec<String>,
+    /// Inspect (`Some(false)`: do not).
+    pub inspect: Option<bool>,
+    /// Part id.
+    pub part: Option<String>,
+    /// Free text stored with the scan.
+    pub tag: Option<String>,
+    /// Output directory; the scan lands in `<out>/<scan id>/`.
+    pub out: PathBuf,
+    /// Give up after this long without the scan finishing.
+    pub timeout: Duration,
+}
+
+/// The finished scan as received.
+pub struct Received {
+    /// Scan id.
+    pub scan_id: String,
+    /// Where it was written.
+    pub dir: PathBuf,
+    /// The final `done` state (timings, points, inspection summary).
+    pub done: Value,
+    /// Inspection verdict, when the scan inspected a part.
+    pub verdict: Option<String>,
+}
+
+/// The request payload of `args`.
+fn request(args: &ScanArgs) -> Value {
+    let mut req = serde_json::Map::new();
+    if let Some(m) = &args.mode {
+        req.insert("mode".into(), m.clone().into());
+    }
+    if !args.sensors.is_empty() {
+        req.insert("sensors".into(), args.sensors.clone().into());
+    }
+    if let Some(i) = args.inspect {
+        req.insert("inspect".into(), i.into());
+    }
+    if let Some(p) = &args.part {
+        req.insert("part".into(), p.clone().into());
+    }
+    if let Some(t) = &args.tag {
+        req.insert("tag".into(), t.clone().into());
+    }
+    Value::Object(req)
+}
+
+/// Run the scan on tokio's multi-thread runtime (Zenoh needs it).
+pub fn run(args: &ScanArgs) -> Result<Received> {
+    if args.connect.is_empty() {
+        bail!("--connect: give the daemon's endpoint, e.g. tcp/127.0.0.1:7447");
+    }
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    runtime.block_on(scan(args))
+}
+
+/// A result item of a scan: its key's last chunks after `scans/<id>/`.
+enum Item {
+    State(Value),
+    Cloud(String, Vec<u8>),
+    Report(Vec<u8>),
+}
+
+fn classify(key: &str, payload: Vec<u8>) -> Option<(String, Item)> {
+    let parts: Vec<&str> = key.split('/').collect();
+    // ris / <cell> / scans / <id> / ...
+    let id = (*parts.get(3)?).to_string();
+    match &parts[4..] {
+        ["state"] => Some((id, Item::State(serde_json::from_slice(&payload).ok()?))),
+        ["cloud", name] => Some((id, Item::Cloud((*name).to_string(), payload))),
+        ["report"] => Some((id, Item::Report(payload))),
+        _ => None,
+    }
+}
+
+async fn scan(args: &ScanArgs) -> Result<Received> {
+    let mut config = zenoh::Config::default();
+    let set = |c: &mut zenoh::Config, key: &str, value: String| {
+        c.insert_json5(key, &value)
+            .map_err(|e| anyhow!("zenoh config {key} = {value}: {e}"))
+    };
+    set(&mut config, "mode", "\"client\"".into())?;
+    set(
+        &mut config,
+        "connect/endpoints",
+        serde_json::to_string(&args.connect)?,
+    )?;
+    set(&mut config, "scouting/multicast/enabled", "false".into())?;
+    let session = zenoh::open(config)
+        .await
+        .map_err(|e| anyhow!("connecting to {:?}: {e}", args.connect))?;
+    let cell = &args.cell;
+    // Subscribe before asking, so that no publication of the scan is missed.
+    let sub = session
+        .declare_subscriber(format!("ris/{cell}/scans/**"))
+        .await
+        .map_err(|e| anyhow!("subscribing to ris/{cell}/scans/**: {e}"))?;
+    let replies = session
+        .get(format!("ris/{cell}/scan"))
+        .payload(request(args).to_string())
+        .timeout(Duration::from_secs(10))
+        .await
+        .map_err(|e| anyhow!("asking ris/{cell}/scan: {e}"))?;
+    let reply = replies.recv_async().await.map_err(|_| {
+        anyhow!(
+            "no reply from ris/{cell}/scan: is risd for cell {cell:?} reachable at {:?}?",
+            args.connect
+        )
+    })?;
+    let scan_id = match reply.result() {
+        Ok(sample) => {
+            let v: Value = serde_json::from_slice(&sample.payload().to_bytes())
+                .context("the daemon's reply is not JSON")?;
+            v["scan_id"]
+                .as_str()
+                .map(str::to_string)
+                .ok_or_else(|| anyhow!("the daemon's reply has no scan_id: {v}"))?
+        }
+        Err(err) => {
+            let text = String::from_utf8_lossy(&err.payload().to_bytes()).into_owned();
+            let reason = serde_json::from_str::<Value>(&text)
+                .ok()
+                .and_then(|v| v["error"].as_str().map(str::to_string))
+                .unwrap_or(text);
+            bail!("risd refused the scan: {reason}");
+        }
+    };
+    tracing::info!(%scan_id, "scan accepted");
+    let pb = crate::progress::bar(0, "queued");
+    let mut frames: BTreeMap<String, (u64, u64)> = BTreeMap::new();
+    let mut clouds: BTreeMap<String, Vec<u8>> = BTreeMap::new();
+    let mut report: Option<Vec<u8>> = None;
+    let deadline = tokio::time::Instant::now() + args.timeout;
+    let done = loop {
+        let sample = tokio::time::timeout_at(deadline, sub.recv_async())
+            .await
+            .map_err(|_| {
+                anyhow!(
+                    "scan {scan_id} did not finish within {} s",
+                    args.timeout.as_secs()
+                )
+            })?
+            .map_err(|e| anyhow!("the subscription ended: {e}"))?;
+        let key = sample.key_expr().as_str().to_string();
+        let Some((id, item)) = classify(&key, sample.payload().to_bytes().into_owned()) else {
+            continue;
+        };
+        if id != scan_id {
+            continue;
+        }
+        match item {
+            Item::Cloud(name, bytes) => {
+                clouds.insert(name, bytes);
+            }
+            Item::Report(bytes) => report = Some(bytes),
+            Item::State(state) => match state["state"].as_str().unwrap_or("") {
+                "acquiring" => {
+                    let sensor = state["sensor"].as_str().unwrap_or("?").to_string();
+                    let f = (
+                        state["frame"].as_u64().unwrap_or(0),
+                        state["frames"].as_u64().unwrap_or(0),
+                    );
+                    pb.set_message(format!("acquiring {sensor}"));
+                    frames.insert(sensor, f);
+                    pb.set_length(frames.values().map(|f| f.1).sum());
+                    pb.set_position(frames.values().map(|f| f.0).sum());
+                }
+                "reconstructing" => pb.set_message(format!(
+                    "reconstructing {}",
+                    state["sensor"].as_str().unwrap_or("?")
+                )),
+                "inspecting" => pb.set_message(format!(
+                    "inspecting {}",
+                    state["part"].as_str().unwrap_or("?")
+                )),
+                "failed" => {
+                    pb.abandon_with_message("failed");
+                    bail!(
+                        "scan {scan_id} failed: {}",
+                        state["reason"].as_str().unwrap_or("no reason given")
+                    );
+                }
+                "done" => break state,
+                other => pb.set_message(other.to_string()),
+            },
+        }
+    };
+    pb.finish_with_message("done");
+    // The clouds and report precede `done` on the stream; fetch from the store whatever did
+    // not arrive (a subscriber that was slow, a dropped sample).
+    let mut expected: Vec<String> = done["sensors"]
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .filter_map(|s| s["sensor"].as_str().map(str::to_string))
+                .collect()
+        })
+        .unwrap_or_default();
+    expected.push("merged".into());
+    let inspected = done["inspection"].is_object();
+    for name in &expected {
+        if clouds.contains_key(name) {
+            continue;
+        }
+        let key = format!("ris/{cell}/scans/{scan_id}/cloud/{name}");
+        let bytes = fetch(&session, &key).await?;
+        clouds.insert(name.clone(), bytes);
+    }
+    if inspected && report.is_none() {
+        report = Some(fetch(&session, &format!("ris/{cell}/scans/{scan_id}/report")).await?);
+    }
+    drop(sub);
+    session
+        .close()
+        .await
+        .map_err(|e| anyhow!("closing the Zenoh session: {e}"))?;
+    let dir = args.out.join(&scan_id);
+    write(&dir, &clouds, report.as_deref(), &done)?;
+    let verdict = done["inspection"]["verdict"].as_str().map(str::to_string);
+    Ok(Received {
+        scan_id,
+        dir,
+        done,
+        verdict,
+    })
+}
+
+/// One stored item of the daemon.
+async fn fetch(session: &zenoh::Session, key: &str) -> Result<Vec<u8>> {
+    let replies = session
+        .get(key)
+        .timeout(Duration::from_secs(30))
+        .await
+        .map_err(|e| anyhow!("asking {key}: {e}"))?;
+    while let Ok(reply) = replies.recv_async().await {
+        if let Ok(sample) = reply.result() {
+            return Ok(sample.payload().to_bytes().into_owned());
+        }
+    }
+    bail!("{key} was neither published nor stored by the daemon")
+}
+
+/// Write the received scan into `dir` all at once (nothing half-written on failure).
+fn write(
+    dir: &Path,
+    clouds: &BTreeMap<String, Vec<u8>>,
+    report: Option<&[u8]>,
+    done: &Value,
+) -> Result<()> {
+    ris_core::io::write_dir_atomically(dir, |tmp| {
+        ris_core::io::create_dir(tmp)?;
+        for (name, bytes) in clouds {
+            ris_core::io::write_atomic(&tmp.join(format!("{name}.ply")), bytes)?;
+        }
+        if let Some(r) = report {
+            ris_core::io::write_atomic(&tmp.join("report.json"), r)?;
+        }
+        let state = serde_json::to_string_pretty(done).unwrap_or_default();
+        ris_core::io::write_atomic(&tmp.join("scan.json"), state.as_bytes())
+    })
+    .with_context(|| format!("writing {}", dir.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn keys_of_a_scan_are_classified() {
+        let state = classify("ris/mock/scans/a1/state", br#"{"state":"done"}"#.to_vec());
+        assert!(matches!(state, Some((id, Item::State(v))) if id == "a1" && v["state"] == "done"));
+        let cloud = classify("ris/mock/scans/a1/cloud/s2", b"ply".to_vec());
+        assert!(matches!(cloud, Some((_, Item::Cloud(n, _))) if n == "s2"));
+        assert!(matches!(
+            classify("ris/mock/scans/a1/report", b"{}".to_vec()),
+            Some((_, Item::Report(_)))
+        ));
+        assert!(classify("ris/mock/scans/a1/state", b"not json".to_vec()).is_none());
+        assert!(classify("ris/mock/scans/a1/other", vec![]).is_none());
+        assert!(classify("ris/mock/health", vec![]).is_none());
+    }
+
+    #[test]
+    fn the_request_carries_only_what_was_given() {
+        let mut args = ScanArgs {
+            connect: vec!["tcp/127.0.0.1:7447".into()],
+            cell: "mock".into(),
+            mode: None,
+            sensors: vec![],
+            inspect: None,
+            part: None,
+            tag: None,
+            out: PathBuf::from("out"),
+            timeout: Duration::from_secs(1),
+        };
+        assert_eq!(request(&args).to_string(), "{}");
+        args.sensors = vec!["s1".into(), "s3".into()];
+        args.inspect = Some(false);
+        args.tag = Some("shift 2".into());
+        let r = request(&args);
+        assert_eq!(r["sensors"], serde_json::json!(["s1", "s3"]));
+        assert_eq!(r["inspect"], false);
+        assert_eq!(r["tag"], "shift 2");
+        assert!(r.get("mode").is_none() && r.get("part").is_none());
+    }
+}

@@ -9,6 +9,7 @@
 pub mod adaptive;
 pub mod camera;
 pub mod clock;
+pub mod conformance;
 pub mod error;
 pub mod frame;
 pub mod mock;

@@ -311,3 +311,16 @@ fn mock_camera_modes_and_errors() {
     }
     assert!((s2 / s1 - 2.0).abs() < 0.02, "ratio {}", s2 / s1);
 }
+
+#[test]
+fn mock_pair_passes_the_conformance_suite() {
+    use ris_drivers::conformance;
+    let mut b = bench(0.5);
+    conformance::projector(&mut b.projector).expect("mock projector");
+    conformance::camera(&mut b.camera, Duration::from_secs(2)).expect("mock camera");
+    // A replayed capture behaves the same.
+    let capture = run(&mut bench(0.0), &params()).expect("capture").capture;
+    let (mut camera, mut projector, _) = replay_pair(Arc::new(capture), "replay");
+    conformance::projector(&mut projector).expect("replay projector");
+    conformance::camera(&mut camera, Duration::from_secs(2)).expect("replay camera");
+}

@@ -225,6 +225,29 @@ enum Command {
     /// Cameras: list what can be opened, grab frames.
     #[command(subcommand)]
     Camera(CameraCommand),
+    /// Show a pattern full-screen on a projector (exact 1:1 pixels), or measure the present
+    /// latency over a scan's sequence
+    Project {
+        /// Pattern name (white, black, flat_LLL, gray_col_KK[_inv], gray_row_KK[_inv]).
+        #[arg(long, default_value = "white")]
+        pattern: String,
+        /// Projector size (its native resolution), e.g. 1280x800.
+        #[arg(long)]
+        projector: String,
+        /// Monitor index.
+        #[arg(long, default_value_t = 0)]
+        monitor: usize,
+        /// Seconds to keep the pattern on screen.
+        #[arg(long, default_value_t = 5.0)]
+        hold: f64,
+        /// Instead: show the scan's whole sequence N times and print the present latency.
+        #[arg(long, value_name = "N", conflicts_with = "conformance")]
+        latency: Option<usize>,
+        /// Instead: check the projector against the driver conformance suite (a new cell's
+        /// installation check).
+        #[arg(long)]
+        conformance: bool,
+    },
     /// Precision (Eq. 3.4-3.6): repeated captures of one scene, per-pixel height standard
     /// deviation, the sensor figure and a heat map PNG.
     Precision {
@@ -408,6 +431,22 @@ fn main() -> Result<()> {
                 Model::Classical => ModelChoice::Classical,
             };
             commands::reconstruct::run(&sensor, &capture, model, &decode.params(), &out)?;
+        }
+        Command::Project {
+            pattern,
+            projector,
+            monitor,
+            hold,
+            latency,
+            conformance,
+        } => {
+            let (width, height) = commands::parse_size(&projector)?;
+            let what = match (latency, conformance) {
+                (Some(n), _) => commands::project::Run::Latency(n),
+                (None, true) => commands::project::Run::Conformance,
+                (None, false) => commands::project::Run::Hold(hold),
+            };
+            commands::project::run(&pattern, width, height, monitor, what)?;
         }
         Command::Camera(CameraCommand::List { discover }) => {
             commands::camera::list(discover)?;

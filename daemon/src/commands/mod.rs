@@ -9,6 +9,7 @@ pub mod inspect;
 pub mod merge;
 pub mod patterns;
 pub mod precision;
+pub mod project;
 pub mod reconstruct;
 pub mod register;
 pub mod scan;

@@ -17,7 +17,7 @@ use serde::Serialize;
 pub enum Backend {
     /// GigE Vision / USB3 Vision through Aravis (feature `aravis`).
     Aravis,
-    /// V4L2 (not built in this version).
+    /// V4L2 / UVC (feature `v4l2`).
     V4l2,
     /// The simulator's camera looking at a scene under full white.
     Mock,
@@ -37,6 +37,13 @@ pub fn list(discover: bool) -> Result<()> {
         }
     } else {
         println!("aravis\t(not built: rebuild with --features aravis; needs libaravis-dev)");
+    }
+    #[cfg(feature = "v4l2")]
+    for (path, name) in ris_v4l2::devices() {
+        println!("v4l2\t{}\t{name}", path.display());
+    }
+    if !ris_v4l2::AVAILABLE {
+        println!("v4l2\t(not built: rebuild with --features v4l2; needs libclang-dev)");
     }
     if discover && !ris_aravis::AVAILABLE {
         anyhow::bail!("--discover needs the aravis backend (build with --features aravis)");
@@ -109,9 +116,21 @@ fn open(backend: Backend, device: &str) -> Result<Opened> {
                  (needs libaravis-dev)"
             )
         }
-        Backend::V4l2 => anyhow::bail!(
-            "the V4L2 backend is not part of this version yet; use --backend aravis or mock"
-        ),
+        Backend::V4l2 => {
+            #[cfg(feature = "v4l2")]
+            {
+                let cam = ris_v4l2::V4l2Camera::open(Path::new(device), None, None)?;
+                Ok(Opened {
+                    camera: Box::new(cam),
+                    _projector: None,
+                })
+            }
+            #[cfg(not(feature = "v4l2"))]
+            anyhow::bail!(
+                "this ris was built without the v4l2 backend; rebuild with --features v4l2 \
+                 (needs libclang-dev)"
+            )
+        }
     }
 }
 

@@ -3,7 +3,7 @@
 
 use std::time::{Duration, Instant};
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use ris_core::pattern::{CodeLayout, Pattern};
 use ris_drivers::{Projector, Slide};
 
@@ -78,6 +78,7 @@ pub fn run(pattern: &str, width: u32, height: u32, monitor: usize, what: Run) ->
 
 #[cfg(feature = "projector")]
 fn open(width: u32, height: u32, monitor: usize) -> Result<impl Projector> {
+    use anyhow::Context;
     ris_projector::WindowProjector::open(&ris_projector::WindowOptions {
         width,
         height,

@@ -10,53 +10,8 @@ use std::time::{Duration, Instant};
 
 use ris_core::pattern::{CodeLayout, Pattern};
 
-/// An Xvfb server on a free display, killed on drop.
-struct Xvfb {
-    child: Child,
-    display: String,
-}
-
-impl Xvfb {
-    fn start(width: u32, height: u32) -> Xvfb {
-        let n = (90..200)
-            .find(|n| {
-                !std::path::Path::new(&format!("/tmp/.X11-unix/X{n}")).exists()
-                    && !std::path::Path::new(&format!("/tmp/.X{n}-lock")).exists()
-            })
-            .expect("a free X display number");
-        let display = format!(":{n}");
-        let child = Command::new("Xvfb")
-            .args([
-                &display,
-                "-screen",
-                "0",
-                &format!("{width}x{height}x24"),
-                "-nolisten",
-                "tcp",
-            ])
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("Xvfb (apt-get install xvfb; .ci/run installs it)");
-        let socket = format!("/tmp/.X11-unix/X{n}");
-        let t = Instant::now();
-        while !std::path::Path::new(&socket).exists() {
-            assert!(
-                t.elapsed() < Duration::from_secs(10),
-                "Xvfb {display} did not start"
-            );
-            std::thread::sleep(Duration::from_millis(50));
-        }
-        Xvfb { child, display }
-    }
-}
-
-impl Drop for Xvfb {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
+mod common;
+use common::Xvfb;
 
 /// The root window as 8-bit (r, g, b) rows, from `xwd -root` (XWD version 7, ZPixmap,
 /// 24-bit depth in 32-bit pixels).

@@ -85,7 +85,7 @@ impl Default for OpenOptions {
 }
 
 /// Aravis's global state is initialised once per process.
-fn library() -> Option<&'static aravis::Aravis> {
+pub(crate) fn library() -> Option<&'static aravis::Aravis> {
     static LIBRARY: OnceLock<Option<aravis::Aravis>> = OnceLock::new();
     LIBRARY
         .get_or_init(|| aravis::Aravis::initialize().ok())

@@ -9,7 +9,12 @@
 mod camera;
 
 #[cfg(feature = "aravis")]
+mod loopback;
+
+#[cfg(feature = "aravis")]
 pub use camera::{discover, AravisCamera, DeviceSpec, OpenOptions, PixelDepth};
+#[cfg(feature = "aravis")]
+pub use loopback::{Fill, LoopbackCamera};
 
 /// Whether this build includes the Aravis backend.
 pub const AVAILABLE: bool = cfg!(feature = "aravis");

@@ -1,0 +1,121 @@
+//! A GigE Vision camera on loopback whose images come from the caller: Aravis's own device-side
+//! GigE Vision implementation (`ArvGvFakeCamera`, the one behind `arv-fake-gv-camera-0.8`) runs
+//! in this process, and a fill callback replaces its test ramp. [`AravisCamera`] opens it by
+//! address like any camera, so a scan through it exercises the real GigE Vision control and
+//! stream protocol, the software trigger included, with simulated images.
+//!
+//! [`AravisCamera`]: crate::AravisCamera
+#![allow(unsafe_code)] // one FFI call and its callback: Aravis's fill-pattern hook is unwrapped
+
+use std::ffi::c_void;
+
+use aravis::glib::translate::ToGlibPtr;
+use ris_drivers::{DriverError, ErrorKind, Result};
+
+/// Writes one frame: the buffer (width × height bytes, Mono8) to fill, width, height.
+pub type Fill = dyn Fn(&mut [u8], u32, u32) + Send + Sync;
+
+/// The fake camera, serving on `interface` until dropped.
+pub struct LoopbackCamera {
+    /// Keeps the device side serving.
+    _gv: aravis::GvFakeCamera,
+    fake: aravis::FakeCamera,
+    fill: *mut Box<Fill>,
+}
+
+// SAFETY: the GObjects are thread-safe reference-counted handles (Aravis drives them from its
+// own threads); `fill` is owned by this value, `Send + Sync`, and only read by the callback.
+unsafe impl Send for LoopbackCamera {}
+
+impl LoopbackCamera {
+    /// Serve a GigE Vision camera on `interface` (an address such as `127.0.0.1`, or an
+    /// interface name), polling its software trigger at `trigger_hz`, with frames from `fill`.
+    pub fn start(interface: &str, trigger_hz: f64, fill: Box<Fill>) -> Result<LoopbackCamera> {
+        let device = format!("loopback:{interface}");
+        crate::camera::library()
+            .ok_or_else(|| DriverError::new(ErrorKind::Failed, &device, "Aravis did not start"))?;
+        let gv = aravis::GvFakeCamera::new(Some(interface), Some("RIS-loopback"));
+        let fake = gv.fake_camera().ok_or_else(|| {
+            DriverError::new(ErrorKind::Failed, &device, "the fake has no camera model")
+        })?;
+        if trigger_hz.is_finite() && trigger_hz > 0.0 {
+            fake.set_trigger_frequency(trigger_hz);
+        }
+        let fill = Box::into_raw(Box::new(fill));
+        let raw: *mut aravis_sys::ArvFakeCamera = fake.to_glib_none().0;
+        // SAFETY: `raw` is a live ArvFakeCamera (held by `fake`); `fill` stays valid until
+        // `Drop` restores the default pattern (under the same mutex the callback runs in)
+        // before freeing it.
+        unsafe {
+            aravis_sys::arv_fake_camera_set_fill_pattern(raw, Some(fill_frame), fill.cast());
+        }
+        if !gv.is_running() {
+            // SAFETY: as above; nothing was filled, restore and free.
+            unsafe {
+                aravis_sys::arv_fake_camera_set_fill_pattern(raw, None, std::ptr::null_mut());
+                drop(Box::from_raw(fill));
+            }
+            return Err(DriverError::new(
+                ErrorKind::Failed,
+                &device,
+                format!("the GigE Vision fake could not serve on {interface}"),
+            ));
+        }
+        tracing::info!(%interface, "loopback GigE Vision camera serving");
+        Ok(LoopbackCamera {
+            _gv: gv,
+            fake,
+            fill,
+        })
+    }
+}
+
+impl Drop for LoopbackCamera {
+    fn drop(&mut self) {
+        let raw: *mut aravis_sys::ArvFakeCamera = self.fake.to_glib_none().0;
+        // SAFETY: restoring the default pattern takes the fill mutex, so no callback is using
+        // `fill` afterwards; then it is freed exactly once.
+        unsafe {
+            aravis_sys::arv_fake_camera_set_fill_pattern(raw, None, std::ptr::null_mut());
+            drop(Box::from_raw(self.fill));
+        }
+    }
+}
+
+/// Aravis's fill-pattern callback: the caller's closure writes the frame.
+unsafe extern "C" fn fill_frame(
+    buffer: *mut aravis_sys::ArvBuffer,
+    data: *mut c_void,
+    _exposure_us: u32,
+    _gain: u32,
+    pixel_format: aravis_sys::ArvPixelFormat,
+) {
+    if buffer.is_null() || data.is_null() || pixel_format != aravis_sys::ARV_PIXEL_FORMAT_MONO_8 {
+        return;
+    }
+    // SAFETY: `data` is the `Box<Fill>` registered in `start`, alive while registered.
+    let fill = unsafe { &*(data as *const Box<Fill>) };
+    // SAFETY: `buffer` is the live buffer Aravis is filling; its part 0 was sized by the fake
+    // (width × height) just before this call.
+    let (width, height) = unsafe {
+        (
+            aravis_sys::arv_buffer_get_image_width(buffer),
+            aravis_sys::arv_buffer_get_image_height(buffer),
+        )
+    };
+    let mut received = 0usize;
+    // SAFETY: as above; the pointer is the buffer's own allocation, which the fake writes in
+    // place (its default pattern does the same). `received` is the size received so far (0
+    // here), not the allocation.
+    let ptr: *mut u8 = unsafe { aravis_sys::arv_buffer_get_data(buffer, &mut received) };
+    let (w, h) = (width.max(0) as u32, height.max(0) as u32);
+    let need = w as usize * h as usize;
+    if ptr.is_null() || need == 0 {
+        return;
+    }
+    // SAFETY: the fake calls the pattern only after checking that the allocation holds its
+    // payload, which for Mono8 is width × height bytes; nothing else accesses the buffer
+    // while the fake fills it.
+    let pixels = unsafe { std::slice::from_raw_parts_mut(ptr, need) };
+    fill(pixels, w, h);
+}

@@ -108,25 +108,19 @@ pub fn validate(req: &ScanRequest, config: &CellConfig) -> Result<Option<usize>,
     }
 }
 
-fn zenoh_config(config: &CellConfig) -> Result<zenoh::Config> {
+/// A Zenoh configuration of `mode` (`peer` or `client`) with these endpoints and no multicast
+/// scouting: RIS talks to the endpoints it is given, nothing else.
+pub fn zenoh_config(mode: &str, listen: &[String], connect: &[String]) -> Result<zenoh::Config> {
     let mut c = zenoh::Config::default();
-    let set = |c: &mut zenoh::Config, key: &str, value: String| {
+    for (key, value) in [
+        ("mode", serde_json::to_string(mode)?),
+        ("listen/endpoints", serde_json::to_string(listen)?),
+        ("connect/endpoints", serde_json::to_string(connect)?),
+        ("scouting/multicast/enabled", "false".to_string()),
+    ] {
         c.insert_json5(key, &value)
-            .map_err(|e| anyhow!("zenoh config {key} = {value}: {e}"))
-    };
-    set(&mut c, "mode", serde_json::to_string(&config.zenoh.mode)?)?;
-    set(
-        &mut c,
-        "listen/endpoints",
-        serde_json::to_string(&config.zenoh.listen)?,
-    )?;
-    set(
-        &mut c,
-        "connect/endpoints",
-        serde_json::to_string(&config.zenoh.connect)?,
-    )?;
-    // No multicast scouting: the daemon talks to the endpoints it is given, nothing else.
-    set(&mut c, "scouting/multicast/enabled", "false".into())?;
+            .map_err(|e| anyhow!("zenoh config {key} = {value}: {e}"))?;
+    }
     Ok(c)
 }
 
@@ -144,7 +138,8 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
     )? {
         tracing::info!(scan = %name, "removed");
     }
-    let session = zenoh::open(zenoh_config(&config)?)
+    let z = &config.zenoh;
+    let session = zenoh::open(zenoh_config(&z.mode, &z.listen, &z.connect)?)
         .await
         .map_err(|e| anyhow!("opening the Zenoh session: {e}"))?;
     let status = Arc::new(Mutex::new(Status {

@@ -20,6 +20,11 @@ macro_rules! ensure {
     };
 }
 
+fn sized(id: &str, width: u32, height: u32) -> Verdict {
+    ensure!(width > 0 && height > 0, "{id}: size {width}x{height}");
+    Ok(())
+}
+
 /// A camera: sane info; exposure set and read back, invalid values refused as
 /// `InvalidArgument`; in software-trigger mode no frame without a trigger (`Timeout`), one
 /// frame per trigger of the advertised size with increasing ids and host times and the exposure
@@ -27,12 +32,7 @@ macro_rules! ensure {
 pub fn camera(cam: &mut dyn Camera, timeout: Duration) -> Verdict {
     let info = cam.info().clone();
     let id = &info.id;
-    ensure!(
-        info.width > 0 && info.height > 0,
-        "{id}: size {}x{}",
-        info.width,
-        info.height
-    );
+    sized(id, info.width, info.height)?;
     ensure!(
         (1..=16).contains(&info.bit_depth),
         "{id}: bit depth {}",
@@ -127,12 +127,7 @@ pub fn camera(cam: &mut dyn Camera, timeout: Duration) -> Verdict {
 pub fn projector(p: &mut dyn Projector) -> Verdict {
     let info = p.info().clone();
     let id = &info.id;
-    ensure!(
-        info.width > 0 && info.height > 0,
-        "{id}: size {}x{}",
-        info.width,
-        info.height
-    );
+    sized(id, info.width, info.height)?;
     match p.show(0) {
         Err(e) if e.kind == ErrorKind::InvalidArgument => {}
         other => return Err(format!("{id}: show before any load gave {other:?}")),

@@ -97,18 +97,7 @@ fn classify(key: &str, payload: Vec<u8>) -> Option<(String, Item)> {
 }
 
 async fn scan(args: &ScanArgs) -> Result<Received> {
-    let mut config = zenoh::Config::default();
-    let set = |c: &mut zenoh::Config, key: &str, value: String| {
-        c.insert_json5(key, &value)
-            .map_err(|e| anyhow!("zenoh config {key} = {value}: {e}"))
-    };
-    set(&mut config, "mode", "\"client\"".into())?;
-    set(
-        &mut config,
-        "connect/endpoints",
-        serde_json::to_string(&args.connect)?,
-    )?;
-    set(&mut config, "scouting/multicast/enabled", "false".into())?;
+    let config = crate::service::zenoh_config("client", &[], &args.connect)?;
     let session = zenoh::open(config)
         .await
         .map_err(|e| anyhow!("connecting to {:?}: {e}", args.connect))?;

@@ -74,7 +74,27 @@ pub fn run(args: &ScanArgs) -> Result<Received> {
         .enable_all()
         .build()
         .context("starting the async runtime")?;
-    runtime.block_on(scan(args))
+    let got = runtime.block_on(scan(args))?;
+    // Files are written off the async runtime, once the session is closed.
+    let dir = args.out.join(&got.scan_id);
+    write(&dir, &got.clouds, got.report.as_deref(), &got.done)?;
+    let verdict = got.done["inspection"]["verdict"]
+        .as_str()
+        .map(str::to_string);
+    Ok(Received {
+        scan_id: got.scan_id,
+        dir,
+        done: got.done,
+        verdict,
+    })
+}
+
+/// What arrived for one scan.
+struct Arrived {
+    scan_id: String,
+    clouds: BTreeMap<String, Vec<u8>>,
+    report: Option<Vec<u8>>,
+    done: Value,
 }
 
 /// A result item of a scan: its key's last chunks after `scans/<id>/`.
@@ -96,7 +116,7 @@ fn classify(key: &str, payload: Vec<u8>) -> Option<(String, Item)> {
     }
 }
 
-async fn scan(args: &ScanArgs) -> Result<Received> {
+async fn scan(args: &ScanArgs) -> Result<Arrived> {
     let config = crate::service::zenoh_config("client", &[], &args.connect)?;
     let session = zenoh::open(config)
         .await
@@ -226,14 +246,11 @@ async fn scan(args: &ScanArgs) -> Result<Received> {
         .close()
         .await
         .map_err(|e| anyhow!("closing the Zenoh session: {e}"))?;
-    let dir = args.out.join(&scan_id);
-    write(&dir, &clouds, report.as_deref(), &done)?;
-    let verdict = done["inspection"]["verdict"].as_str().map(str::to_string);
-    Ok(Received {
+    Ok(Arrived {
         scan_id,
-        dir,
+        clouds,
+        report,
         done,
-        verdict,
     })
 }
 

@@ -22,8 +22,8 @@ pub struct ZenohSection {
     /// `peer` or `client`.
     #[serde(default = "peer")]
     pub mode: String,
-    /// Endpoints to listen on (e.g. `tcp/0.0.0.0:7447`).
-    #[serde(default)]
+    /// Endpoints to listen on (default `tcp/127.0.0.1:7447`: loopback only).
+    #[serde(default = "loopback")]
     pub listen: Vec<String>,
     /// Endpoints to connect to.
     #[serde(default)]
@@ -34,7 +34,7 @@ impl Default for ZenohSection {
     fn default() -> Self {
         ZenohSection {
             mode: peer(),
-            listen: Vec::new(),
+            listen: loopback(),
             connect: Vec::new(),
         }
     }
@@ -136,6 +136,10 @@ pub struct PartSection {
     pub datums: Option<PathBuf>,
     /// Tolerance on |deviation|, mm.
     pub tolerance: f64,
+    /// Minimum fraction of the CAD surface measured for a verdict (default 0.5); below it
+    /// the part is `not_measured`.
+    #[serde(default = "half")]
+    pub min_coverage: f64,
 }
 
 /// A cell configuration file.
@@ -172,6 +176,12 @@ fn fifty() -> u32 {
 }
 fn thirty() -> u32 {
     30
+}
+fn loopback() -> Vec<String> {
+    vec!["tcp/127.0.0.1:7447".into()]
+}
+fn half() -> f64 {
+    0.5
 }
 fn four() -> usize {
     4
@@ -226,6 +236,8 @@ pub struct PartConfig {
     pub datums: Option<PathBuf>,
     /// Tolerance, mm.
     pub tolerance: f64,
+    /// Minimum measured fraction of the CAD surface.
+    pub min_coverage: f64,
 }
 
 /// A validated cell configuration, paths resolved against the file's directory.
@@ -243,6 +255,51 @@ pub struct CellConfig {
     pub sensors: Vec<SensorConfig>,
     /// Parts.
     pub parts: Vec<PartConfig>,
+}
+
+/// Most scans that may wait in the queue.
+pub const MAX_QUEUE: usize = 1000;
+/// Most compute threads.
+pub const MAX_THREADS: usize = 1024;
+/// Longest exposure, µs.
+pub const MAX_EXPOSURE_US: f64 = 10_000_000.0;
+
+/// Check Zenoh endpoints (`proto/host:port`, a port within 1 … 65535 for the IP transports),
+/// naming `key` (e.g. `zenoh.listen`, or `--listen`) in the error.
+pub fn check_endpoints(ctx: &str, key: &str, list: &[String]) -> Result<()> {
+    for e in list {
+        let bad = |why: &str| {
+            anyhow::anyhow!(
+                "{ctx}: `{key}`: {:?} {why}; an endpoint looks like tcp/127.0.0.1:7447",
+                e.chars().take(100).collect::<String>()
+            )
+        };
+        let (proto, rest) = e.split_once('/').ok_or_else(|| bad("has no protocol"))?;
+        let address = rest.split(['?', '#']).next().unwrap_or_default();
+        match proto {
+            "tcp" | "udp" | "tls" | "quic" => {
+                let (host, port) = address.rsplit_once(':').ok_or_else(|| bad("has no port"))?;
+                if host.is_empty() {
+                    return Err(bad("has no host"));
+                }
+                match port.parse::<u16>() {
+                    Ok(p) if p > 0 => {}
+                    _ => return Err(bad("has a port outside 1 … 65535")),
+                }
+            }
+            "unixsock-stream" | "ws" | "serial" => {
+                if address.is_empty() {
+                    return Err(bad("has no address"));
+                }
+            }
+            _ => {
+                return Err(bad(
+                    "names an unknown protocol (tcp, udp, tls, quic, unixsock-stream)",
+                ))
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The configuration of the built-in mock cell (`config/mock-cell.toml`).
@@ -281,21 +338,19 @@ impl CellConfig {
                 format!("{:?} must be \"peer\" or \"client\"", file.zenoh.mode),
             ));
         }
-        for (k, list) in [
-            ("zenoh.listen", &file.zenoh.listen),
-            ("zenoh.connect", &file.zenoh.connect),
-        ] {
-            for e in list {
-                if !e.contains('/') {
-                    return Err(field(
-                        k,
-                        format!("{e:?} is not an endpoint like tcp/127.0.0.1:7447"),
-                    ));
-                }
-            }
+        check_endpoints(ctx, "zenoh.listen", &file.zenoh.listen)?;
+        check_endpoints(ctx, "zenoh.connect", &file.zenoh.connect)?;
+        if !(1..=MAX_QUEUE).contains(&file.workers.queue) {
+            return Err(field(
+                "workers.queue",
+                format!("{} must be within 1 … {MAX_QUEUE}", file.workers.queue),
+            ));
         }
-        if file.workers.queue == 0 {
-            return Err(field("workers.queue", "must be at least 1".into()));
+        if file.workers.threads > MAX_THREADS {
+            return Err(field(
+                "workers.threads",
+                format!("{} must be within 0 … {MAX_THREADS}", file.workers.threads),
+            ));
         }
         if file.sensor.is_empty() {
             return Err(field("sensor", "the cell has no [[sensor]]".into()));
@@ -325,10 +380,16 @@ impl CellConfig {
                     "\"merged\" names the merged cloud".into(),
                 ));
             }
-            if !(s.exposure_us.is_finite() && s.exposure_us > 0.0) {
+            if !(s.exposure_us.is_finite()
+                && s.exposure_us > 0.0
+                && s.exposure_us <= MAX_EXPOSURE_US)
+            {
                 return Err(field(
                     &f("exposure_us"),
-                    format!("{} must be positive", s.exposure_us),
+                    format!(
+                        "{} must be a positive number of µs up to {MAX_EXPOSURE_US} (10 s)",
+                        s.exposure_us
+                    ),
                 ));
             }
             let backend = match s.backend.as_str() {
@@ -417,11 +478,18 @@ impl CellConfig {
                     format!("{} must be positive", p.tolerance),
                 ));
             }
+            if !(0.0..=1.0).contains(&p.min_coverage) {
+                return Err(field(
+                    &f("min_coverage"),
+                    format!("{} must be within 0 … 1", p.min_coverage),
+                ));
+            }
             parts.push(PartConfig {
                 id: p.id.clone(),
                 cad: resolve(&p.cad),
                 datums: p.datums.as_deref().map(resolve),
                 tolerance: p.tolerance,
+                min_coverage: p.min_coverage,
             });
         }
         let mut storage = file.storage.clone();

@@ -1,4 +1,4 @@
-//! The RIS daemon crate: the `ris` command-line tool now, the `risd` cell daemon later.
+//! The RIS daemon crate: the `risd` cell daemon and the `ris` command-line tool.
 //!
 //! Binaries under `src/bin/` only parse arguments and set up logging; every command's logic is a
 //! function in [`commands`] so tests can call it directly.
@@ -8,5 +8,7 @@ pub mod config;
 pub mod logging;
 pub mod notify;
 pub mod progress;
+pub mod protocol;
 pub mod scan;
 pub mod service;
+pub mod store;

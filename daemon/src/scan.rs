@@ -112,6 +112,9 @@ pub struct StageSeconds {
 pub struct ScanReport {
     /// Scan id.
     pub scan_id: String,
+    /// The request's tag.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tag: Option<String>,
     /// Cell.
     pub cell: String,
     /// Per sensor.
@@ -133,7 +136,7 @@ pub struct ScanReport {
 pub struct InspectionSummary {
     /// Part id.
     pub part: String,
-    /// `pass` or `fail`.
+    /// `pass`, `fail` or `not_measured`.
     pub verdict: String,
     /// Why it failed.
     pub reasons: Vec<String>,
@@ -154,6 +157,7 @@ pub struct Part {
     cad: SignedDistance,
     datums: Vec<Datum>,
     tolerance: f64,
+    min_coverage: f64,
 }
 
 impl Part {
@@ -170,6 +174,7 @@ impl Part {
             cad: SignedDistance::new(mesh),
             datums,
             tolerance: config.tolerance,
+            min_coverage: config.min_coverage,
         })
     }
 }
@@ -183,6 +188,8 @@ pub struct ScanOptions<'a> {
     pub keep_captures: bool,
     /// Inspect the merged cloud against this part.
     pub part: Option<&'a Part>,
+    /// Free text of the request, stored in `scan.json`.
+    pub tag: Option<&'a str>,
 }
 
 /// Prepare every pair of `config`: for mock pairs, ray-cast the scene and record and fit the
@@ -244,38 +251,58 @@ pub fn run(
     state: &(dyn Fn(&ScanState) + Sync),
 ) -> Result<(ScanReport, PathBuf)> {
     let scans = data_dir.join("scans");
-    std::fs::create_dir_all(&scans).with_context(|| format!("creating {}", scans.display()))?;
     let dir = scans.join(scan_id);
     let partial = scans.join(format!("{scan_id}.partial"));
-    if dir.exists() {
-        return Err(anyhow!(
-            "scan {scan_id} exists already in {}",
-            scans.display()
-        ));
-    }
-    std::fs::create_dir_all(&partial).with_context(|| format!("creating {}", partial.display()))?;
-    let selected: Vec<bool> = pairs
-        .iter()
-        .map(|p| options.only.is_none_or(|names| names.contains(&p.name)))
-        .collect();
-    let result = scan_into(
-        cell, pairs, &selected, &partial, scan_id, options, cancelled, state,
-    );
+    // Every way out of a scan publishes its end state: the directory checks, the scan itself
+    // (a panic in any stage included) and the final rename.
+    let result = (|| -> Result<ScanReport> {
+        std::fs::create_dir_all(&scans).with_context(|| format!("creating {}", scans.display()))?;
+        if dir.exists() || partial.exists() {
+            return Err(anyhow!(
+                "scan {scan_id} exists already in {}",
+                scans.display()
+            ));
+        }
+        std::fs::create_dir(&partial).with_context(|| format!("creating {}", partial.display()))?;
+        let selected: Vec<bool> = pairs
+            .iter()
+            .map(|p| options.only.is_none_or(|names| names.contains(&p.name)))
+            .collect();
+        let report = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            scan_into(
+                cell, pairs, &selected, &partial, scan_id, options, cancelled, state,
+            )
+        }))
+        .map_err(|panic| anyhow!("internal error: {}", panic_message(&*panic)))??;
+        std::fs::rename(&partial, &dir).with_context(|| format!("finishing {}", dir.display()))?;
+        Ok(report)
+    })();
     match result {
         Ok(report) => {
-            std::fs::rename(&partial, &dir)
-                .with_context(|| format!("finishing {}", dir.display()))?;
             state(&ScanState::Done);
             Ok((report, dir))
         }
         Err(e) => {
-            let _ = std::fs::remove_dir_all(&partial);
+            if partial.exists() {
+                if let Err(rm) = std::fs::remove_dir_all(&partial) {
+                    tracing::warn!(path = %partial.display(), error = %rm, "cannot remove the unfinished scan");
+                }
+            }
             state(&ScanState::Failed {
                 reason: format!("{e:#}"),
             });
             Err(e)
         }
     }
+}
+
+/// The text of a caught panic.
+pub fn panic_message(panic: &(dyn std::any::Any + Send)) -> String {
+    panic
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| panic.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "a panic without a message".into())
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -457,6 +484,7 @@ fn scan_into(
     };
     let report = ScanReport {
         scan_id: scan_id.to_string(),
+        tag: options.tag.map(str::to_string),
         cell: cell.to_string(),
         sensors: timings
             .into_iter()
@@ -499,6 +527,7 @@ fn inspect_part(
             tolerance: part.tolerance,
             datums: part.datums.clone(),
             init: Some(ris_core::register::Pose::identity()),
+            min_coverage: part.min_coverage,
             ..InspectParams::default()
         },
     )
@@ -526,44 +555,6 @@ fn inspect_part(
         within_tolerance: s.within_tolerance,
         seconds: (i0, secs()),
     })
-}
-
-/// Remove unfinished scans left by a crash (`*.partial`), and old scans beyond `keep` (0:
-/// all kept) or older than `max_age_days` (0: no limit). Returns the names removed.
-pub fn housekeeping(data_dir: &Path, keep: u32, max_age_days: u32) -> Result<Vec<String>> {
-    let scans = data_dir.join("scans");
-    let mut removed = Vec::new();
-    let Ok(entries) = std::fs::read_dir(&scans) else {
-        return Ok(removed);
-    };
-    let mut finished = Vec::new();
-    for e in entries.flatten() {
-        let name = e.file_name().to_string_lossy().into_owned();
-        let path = e.path();
-        if name.ends_with(".partial") {
-            std::fs::remove_dir_all(&path)
-                .with_context(|| format!("removing the unfinished scan {}", path.display()))?;
-            removed.push(name);
-        } else if path.join("scan.json").is_file() {
-            let modified = e.metadata().and_then(|m| m.modified()).ok();
-            finished.push((modified, name, path));
-        }
-    }
-    finished.sort_by_key(|f| std::cmp::Reverse(f.0));
-    let now = std::time::SystemTime::now();
-    for (k, (modified, name, path)) in finished.into_iter().enumerate() {
-        let too_many = keep > 0 && k >= keep as usize;
-        let too_old = max_age_days > 0
-            && modified
-                .and_then(|m| now.duration_since(m).ok())
-                .is_some_and(|age| age.as_secs() > u64::from(max_age_days) * 86_400);
-        if too_many || too_old {
-            std::fs::remove_dir_all(&path)
-                .with_context(|| format!("removing the old scan {}", path.display()))?;
-            removed.push(name);
-        }
-    }
-    Ok(removed)
 }
 
 /// A new scan id: UTC time to the millisecond plus a counter (`20261122T084921.028Z-0`), so

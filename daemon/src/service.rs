@@ -3,12 +3,13 @@
 //! token and a status for health. Modelled on mini-redis: [`run`] takes its stop signal as an
 //! argument; scans run one at a time on a worker thread fed by a bounded queue.
 
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{mpsc, Arc, Mutex};
+use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Context, Result};
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 use tokio_util::sync::CancellationToken;
 use zenoh::qos::CongestionControl;
 use zenoh::query::Query;
@@ -16,29 +17,9 @@ use zenoh::{Session, Wait};
 
 use crate::config::CellConfig;
 use crate::notify;
+use crate::protocol::{echo, health_key, scan_key, state_key, ScanRequest};
 use crate::scan::{self, Pair, Part, ScanOptions, ScanState};
-
-/// A scan request (`ris/<cell>/scan` payload; every field optional).
-#[derive(Clone, Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ScanRequest {
-    /// `gray` (default); `adaptive` and `single-shot` are refused by this build.
-    #[serde(default)]
-    pub mode: Option<String>,
-    /// Sensors to scan (default all).
-    #[serde(default)]
-    pub sensors: Option<Vec<String>>,
-    /// Inspect the merged cloud (default: when the cell defines exactly one part, or `part`
-    /// names one).
-    #[serde(default)]
-    pub inspect: Option<bool>,
-    /// Part id (required to inspect when the cell defines several).
-    #[serde(default)]
-    pub part: Option<String>,
-    /// Free text stored with the scan.
-    #[serde(default)]
-    pub tag: Option<String>,
-}
+use crate::store::{self, DataDirLock};
 
 /// What `ris/<cell>/health` answers.
 #[derive(Clone, Debug, Serialize)]
@@ -60,6 +41,34 @@ struct Job {
     sensors: Option<Vec<String>>,
     /// Index of the part to inspect.
     part: Option<usize>,
+    tag: Option<String>,
+}
+
+/// The scan worker's sign of life: milliseconds since `start` at its last beat. The systemd
+/// watchdog is fed only while it is recent, so a stuck or dead worker gets risd restarted.
+struct Heartbeat {
+    start: Instant,
+    last_ms: AtomicU64,
+}
+
+impl Heartbeat {
+    fn new() -> Heartbeat {
+        Heartbeat {
+            start: Instant::now(),
+            last_ms: AtomicU64::new(0),
+        }
+    }
+
+    fn beat(&self) {
+        self.last_ms
+            .store(self.start.elapsed().as_millis() as u64, Ordering::Relaxed);
+    }
+
+    fn age(&self) -> Duration {
+        self.start
+            .elapsed()
+            .saturating_sub(Duration::from_millis(self.last_ms.load(Ordering::Relaxed)))
+    }
 }
 
 /// Validate a request against the cell and choose the part to inspect (an index into the
@@ -72,7 +81,12 @@ pub fn validate(req: &ScanRequest, config: &CellConfig) -> Result<Option<usize>,
                 "mode {m:?} is not available in this risd build; use \"gray\""
             ))
         }
-        Some(m) => return Err(format!("unknown mode {m:?} (gray, adaptive, single-shot)")),
+        Some(m) => {
+            return Err(format!(
+                "unknown mode {} (gray, adaptive, single-shot)",
+                echo(m)
+            ))
+        }
     }
     if let Some(list) = &req.sensors {
         if list.is_empty() {
@@ -80,7 +94,7 @@ pub fn validate(req: &ScanRequest, config: &CellConfig) -> Result<Option<usize>,
         }
         for s in list {
             if !config.sensors.iter().any(|c| c.name == *s) {
-                return Err(format!("no sensor {s:?} in cell {:?}", config.name));
+                return Err(format!("no sensor {} in cell {:?}", echo(s), config.name));
             }
         }
     }
@@ -90,7 +104,7 @@ pub fn validate(req: &ScanRequest, config: &CellConfig) -> Result<Option<usize>,
                 .parts
                 .iter()
                 .position(|c| c.id == *p)
-                .ok_or_else(|| format!("no part {p:?} in cell {:?}", config.name))?,
+                .ok_or_else(|| format!("no part {} in cell {:?}", echo(p), config.name))?,
         ),
         None => None,
     };
@@ -124,14 +138,19 @@ pub fn zenoh_config(mode: &str, listen: &[String], connect: &[String]) -> Result
     Ok(c)
 }
 
+/// How long risd asks the network whether another daemon serves the same cell.
+const PEER_CHECK: Duration = Duration::from_millis(1500);
+
 /// Serve the cell until `shutdown` is cancelled; then stop accepting, let the running scan
-/// end (finished, or failed at the next exposure group), and close.
+/// end (finished, or failed at the next exposure group), and close. The data directory is
+/// locked before anything in it is touched; the health token and `READY=1` come only when
+/// every pair is prepared (a scan request before that gets an error reply saying so).
 pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> {
     let cell = config.name.clone();
     let data_dir = config.storage.data_dir.clone();
-    std::fs::create_dir_all(&data_dir)
-        .with_context(|| format!("creating the data directory {}", data_dir.display()))?;
-    for name in scan::housekeeping(
+    let lock = DataDirLock::acquire(&data_dir)?;
+    tracing::debug!(lock = %lock.path().display(), "data directory locked");
+    for name in store::housekeeping(
         &data_dir,
         config.storage.keep_scans,
         config.storage.max_age_days,
@@ -142,6 +161,26 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
     let session = zenoh::open(zenoh_config(&z.mode, &z.listen, &z.connect)?)
         .await
         .map_err(|e| anyhow!("opening the Zenoh session: {e}"))?;
+    // One daemon per cell name on the network: two would both scan for one request.
+    let others = session
+        .liveliness()
+        .get(health_key(&cell))
+        .timeout(PEER_CHECK)
+        .await
+        .map_err(|e| anyhow!("asking for other daemons of cell {cell}: {e}"))?;
+    let mut rivals = Vec::new();
+    while let Ok(reply) = others.recv_async().await {
+        if let Ok(sample) = reply.result() {
+            rivals.push(sample.key_expr().to_string());
+        }
+    }
+    if !rivals.is_empty() {
+        let _ = session.close().await;
+        return Err(anyhow!(
+            "another risd already serves cell {cell:?} on this Zenoh network ({}); give each cell its own [cell] name",
+            rivals.join(", ")
+        ));
+    }
     let status = Arc::new(Mutex::new(Status {
         state: "preparing".into(),
         sensors: config.sensors.iter().map(|s| s.name.clone()).collect(),
@@ -149,100 +188,151 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
         last_scan: None,
         last_error: None,
     }));
-    let token = session
-        .liveliness()
-        .declare_token(format!("ris/{cell}/health"))
-        .await
-        .map_err(|e| anyhow!("declaring the liveliness token: {e}"))?;
     let health = session
-        .declare_queryable(format!("ris/{cell}/health"))
+        .declare_queryable(health_key(&cell))
         .await
-        .map_err(|e| anyhow!("declaring ris/{cell}/health: {e}"))?;
+        .map_err(|e| anyhow!("declaring {}: {e}", health_key(&cell)))?;
+    let scan_q = session
+        .declare_queryable(scan_key(&cell))
+        .await
+        .map_err(|e| anyhow!("declaring {}: {e}", scan_key(&cell)))?;
+    let store_q = session
+        .declare_queryable(format!("ris/{cell}/scans/**"))
+        .await
+        .map_err(|e| anyhow!("declaring ris/{cell}/scans/**: {e}"))?;
 
+    let heartbeat = Arc::new(Heartbeat::new());
+    heartbeat.beat();
+    let watchdog = notify::watchdog_interval().map(|every| {
+        let (stop, beat) = (shutdown.clone(), heartbeat.clone());
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(every);
+            loop {
+                tokio::select! {
+                    _ = stop.cancelled() => break,
+                    _ = tick.tick() => {
+                        // WATCHDOG_USEC is twice `every`: a worker silent that long is stuck.
+                        if beat.age() < 2 * every {
+                            notify::notify("WATCHDOG=1");
+                        } else {
+                            tracing::error!(silent_s = beat.age().as_secs_f64(), "the scan worker is not responding; leaving the watchdog unfed");
+                        }
+                    }
+                }
+            }
+        })
+    });
+
+    // Preparation (reference recordings, CAD indexing) off the runtime; SIGTERM does not wait
+    // for it.
     let prep_config = config.clone();
-    let (pairs, parts) = tokio::task::spawn_blocking(move || -> Result<_> {
+    let mut preparation = tokio::task::spawn_blocking(move || -> Result<_> {
         let parts = prep_config
             .parts
             .iter()
             .map(Part::prepare)
             .collect::<Result<Vec<_>>>()?;
         Ok((scan::prepare(&prep_config, 1)?, parts))
-    })
-    .await
-    .context("preparing the pairs")??;
-    set_state(&status, "ready");
-
-    let (tx, rx) = mpsc::sync_channel::<Job>(config.workers.queue);
-    let stopping = Arc::new(AtomicBool::new(false));
-    let worker = {
-        let (session, status, stopping, cell, data_dir) = (
-            session.clone(),
-            status.clone(),
-            stopping.clone(),
-            cell.clone(),
-            data_dir.clone(),
-        );
-        let keep = config.storage.keep_captures;
-        std::thread::spawn(move || {
-            worker_loop(
-                rx, pairs, &parts, &session, &status, &stopping, &cell, &data_dir, keep,
-            )
-        })
-    };
-    let scan_q = session
-        .declare_queryable(format!("ris/{cell}/scan"))
-        .await
-        .map_err(|e| anyhow!("declaring ris/{cell}/scan: {e}"))?;
-    let store_q = session
-        .declare_queryable(format!("ris/{cell}/scans/**"))
-        .await
-        .map_err(|e| anyhow!("declaring ris/{cell}/scans/**: {e}"))?;
-    notify::notify("READY=1");
-    tracing::info!(%cell, zid = %session.zid(), "risd ready");
-    let watchdog = notify::watchdog_interval().map(|every| {
-        let stop = shutdown.clone();
-        tokio::spawn(async move {
-            let mut tick = tokio::time::interval(every);
-            loop {
-                tokio::select! {
-                    _ = stop.cancelled() => break,
-                    _ = tick.tick() => notify::notify("WATCHDOG=1"),
-                }
-            }
-        })
     });
+    let mut prepared = false;
+    let mut token = None;
+    let (tx, rx) = mpsc::sync_channel::<Job>(config.workers.queue);
+    let mut rx = Some(rx);
+    let stopping = Arc::new(AtomicBool::new(false));
+    let (worker_gone_tx, mut worker_gone) = tokio::sync::oneshot::channel::<()>();
+    let mut worker_gone_tx = Some(worker_gone_tx);
+    let mut worker = None;
     let mut counter = 0u64;
-    loop {
+    let outcome: Result<()> = loop {
         tokio::select! {
-            _ = shutdown.cancelled() => break,
+            _ = shutdown.cancelled() => break Ok(()),
+            done = &mut preparation, if !prepared => {
+                prepared = true;
+                let (pairs, parts) = match done {
+                    Ok(Ok(p)) => p,
+                    Ok(Err(e)) => break Err(e.context("preparing the cell")),
+                    Err(e) => break Err(anyhow!("preparing the cell: {e}")),
+                };
+                let (w_session, w_status, w_stopping, beat, w_cell, w_data_dir, storage) = (
+                    session.clone(),
+                    status.clone(),
+                    stopping.clone(),
+                    heartbeat.clone(),
+                    cell.clone(),
+                    data_dir.clone(),
+                    config.storage.clone(),
+                );
+                let (Some(rx), Some(gone)) = (rx.take(), worker_gone_tx.take()) else {
+                    break Err(anyhow!("the scan worker was started twice"));
+                };
+                let spawned = std::thread::Builder::new()
+                    .name("risd-scan".into())
+                    .spawn(move || {
+                        let ctx = WorkerContext {
+                            parts: &parts,
+                            session: &w_session,
+                            status: &w_status,
+                            stopping: &w_stopping,
+                            heartbeat: &beat,
+                            cell: &w_cell,
+                            data_dir: &w_data_dir,
+                            storage: &storage,
+                        };
+                        worker_loop(rx, pairs, &ctx);
+                        drop(gone);
+                    });
+                match spawned {
+                    Ok(h) => worker = Some(h),
+                    Err(e) => break Err(anyhow!("starting the scan worker: {e}")),
+                }
+                match session.liveliness().declare_token(health_key(&cell)).await {
+                    Ok(t) => token = Some(t),
+                    Err(e) => break Err(anyhow!("declaring the liveliness token: {e}")),
+                }
+                set_state(&status, "ready");
+                notify::notify("READY=1");
+                tracing::info!(%cell, zid = %session.zid(), "risd ready");
+            }
+            _ = &mut worker_gone, if worker.is_some() => {
+                break Err(anyhow!("the scan worker stopped unexpectedly"));
+            }
             q = scan_q.recv_async() => {
-                let Ok(q) = q else { break };
+                let Ok(q) = q else { break Ok(()) };
+                if !prepared || token.is_none() {
+                    reply_error(&q, &scan_key(&cell), "the cell is starting: its pairs are being prepared; try again when ris/<cell>/health is alive").await;
+                    continue;
+                }
                 counter += 1;
                 handle_scan(&q, &config, &tx, &status, &session, counter).await;
             }
             q = store_q.recv_async() => {
-                let Ok(q) = q else { break };
-                handle_store(&q, &cell, &data_dir).await;
+                let Ok(q) = q else { break Ok(()) };
+                // Stored scans can be large: served on their own task so health and scan
+                // requests are not held up.
+                let (c, d) = (cell.clone(), data_dir.clone());
+                tokio::spawn(async move { handle_store(&q, &c, &d).await });
             }
             q = health.recv_async() => {
-                let Ok(q) = q else { break };
+                let Ok(q) = q else { break Ok(()) };
                 let json = status.lock().map(|s| serde_json::to_string(&*s).unwrap_or_default()).unwrap_or_default();
-                if let Err(e) = q.reply(q.key_expr().clone(), json).await {
+                if let Err(e) = q.reply(health_key(&cell), json).await {
                     tracing::warn!(error = %e, "health reply failed");
                 }
             }
         }
-    }
+    };
     notify::notify("STOPPING=1");
     tracing::info!("stopping: no new scans; ending the running one");
     set_state(&status, "stopping");
     drop(scan_q);
     stopping.store(true, Ordering::SeqCst);
     drop(tx);
-    tokio::task::spawn_blocking(move || worker.join())
-        .await
-        .context("joining the scan worker")?
-        .map_err(|_| anyhow!("the scan worker panicked"))?;
+    if let Some(worker) = worker {
+        tokio::task::spawn_blocking(move || worker.join())
+            .await
+            .context("joining the scan worker")?
+            .map_err(|_| anyhow!("the scan worker panicked"))?;
+    }
     if let Some(w) = watchdog {
         w.abort();
     }
@@ -253,6 +343,8 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
         .close()
         .await
         .map_err(|e| anyhow!("closing the Zenoh session: {e}"))?;
+    drop(lock);
+    outcome?;
     tracing::info!("risd stopped");
     Ok(())
 }
@@ -260,6 +352,14 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
 fn set_state(status: &Mutex<Status>, state: &str) {
     if let Ok(mut s) = status.lock() {
         s.state = state.into();
+    }
+}
+
+async fn reply_error(q: &Query, key: &str, reason: &str) {
+    tracing::warn!(reason, "scan refused");
+    let reply = serde_json::json!({ "error": reason }).to_string();
+    if let Err(e) = q.reply_err(reply).await {
+        tracing::warn!(%key, error = %e, "error reply failed");
     }
 }
 
@@ -271,22 +371,37 @@ async fn handle_scan(
     session: &Session,
     counter: u64,
 ) {
-    let req: Result<ScanRequest, String> = match q.payload() {
-        None => Ok(ScanRequest::default()),
-        Some(p) if p.is_empty() => Ok(ScanRequest::default()),
-        Some(p) => {
-            serde_json::from_slice(&p.to_bytes()).map_err(|e| format!("malformed request: {e}"))
-        }
-    };
-    let outcome = req
+    let key = scan_key(&config.name);
+    // Only the exact key starts a scan: a wildcard query (`ris/*/scan`, `**`) is not a request.
+    if q.key_expr().as_str() != key {
+        tracing::debug!(asked = %q.key_expr(), "wildcard query on the scan key ignored");
+        return;
+    }
+    let body = q
+        .payload()
+        .map(|p| p.to_bytes().into_owned())
+        .unwrap_or_default();
+    let outcome = ScanRequest::parse(&body)
         .and_then(|r| validate(&r, config).map(|part| (r, part)))
         .and_then(|(r, part)| {
             let scan_id = scan::new_scan_id(counter);
-            match tx.try_send(Job {
+            // Counted before the worker can take it, so the count never goes stale.
+            if let Ok(mut s) = status.lock() {
+                s.queue += 1;
+            }
+            let job = Job {
                 scan_id: scan_id.clone(),
                 sensors: r.sensors.clone(),
                 part,
-            }) {
+                tag: r.tag.clone(),
+            };
+            let sent = tx.try_send(job);
+            if sent.is_err() {
+                if let Ok(mut s) = status.lock() {
+                    s.queue = s.queue.saturating_sub(1);
+                }
+            }
+            match sent {
                 Ok(()) => Ok((scan_id, r)),
                 Err(mpsc::TrySendError::Full(_)) => Err(format!(
                     "the scan queue is full ({} waiting); try again later",
@@ -297,128 +412,170 @@ async fn handle_scan(
         });
     match outcome {
         Ok((scan_id, r)) => {
-            if let Ok(mut s) = status.lock() {
-                s.queue += 1;
-            }
-            tracing::info!(%scan_id, tag = ?r.tag, "scan accepted");
+            tracing::info!(%scan_id, tag = ?r.tag.as_deref().map(echo), "scan accepted");
             publish(session, &config.name, &scan_id, &ScanState::Queued);
             let reply = serde_json::json!({"scan_id": scan_id, "state": "accepted"}).to_string();
-            if let Err(e) = q.reply(q.key_expr().clone(), reply).await {
+            if let Err(e) = q.reply(&key, reply).await {
                 tracing::warn!(error = %e, "scan reply failed");
             }
         }
-        Err(reason) => {
-            tracing::warn!(%reason, "scan refused");
-            let reply = serde_json::json!({"error": reason}).to_string();
-            if let Err(e) = q.reply_err(reply).await {
-                tracing::warn!(error = %e, "scan error reply failed");
-            }
-        }
+        Err(reason) => reply_error(q, &key, &reason).await,
     }
 }
 
 fn publish(session: &Session, cell: &str, scan_id: &str, state: &ScanState) {
-    let key = format!("ris/{cell}/scans/{scan_id}/state");
+    let key = state_key(cell, scan_id);
     let json = serde_json::to_string(state).unwrap_or_default();
     if let Err(e) = session.put(&key, json).wait() {
         tracing::warn!(%key, error = %e, "state publication failed");
     }
 }
 
-#[allow(clippy::too_many_arguments)]
-fn worker_loop(
-    rx: mpsc::Receiver<Job>,
-    mut pairs: Vec<Pair>,
-    parts: &[Part],
-    session: &Session,
-    status: &Mutex<Status>,
-    stopping: &AtomicBool,
-    cell: &str,
-    data_dir: &Path,
-    keep_captures: bool,
-) {
-    for job in rx {
-        if let Ok(mut s) = status.lock() {
+/// What the scan worker shares with the service.
+struct WorkerContext<'a> {
+    parts: &'a [Part],
+    session: &'a Session,
+    status: &'a Mutex<Status>,
+    stopping: &'a AtomicBool,
+    heartbeat: &'a Heartbeat,
+    cell: &'a str,
+    data_dir: &'a Path,
+    storage: &'a crate::config::StorageSection,
+}
+
+fn worker_loop(rx: mpsc::Receiver<Job>, mut pairs: Vec<Pair>, ctx: &WorkerContext) {
+    loop {
+        ctx.heartbeat.beat();
+        let job = match rx.recv_timeout(Duration::from_secs(1)) {
+            Ok(job) => job,
+            Err(mpsc::RecvTimeoutError::Timeout) => continue,
+            Err(mpsc::RecvTimeoutError::Disconnected) => break,
+        };
+        if let Ok(mut s) = ctx.status.lock() {
             s.queue = s.queue.saturating_sub(1);
             s.state = "scanning".into();
         }
-        let id = job.scan_id;
-        if stopping.load(Ordering::SeqCst) {
+        let id = job.scan_id.clone();
+        // A panic anywhere in a job fails that job; the worker goes on with the next.
+        let ran = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            run_job(job, &mut pairs, ctx)
+        }));
+        if let Err(panic) = ran {
+            let reason = format!("internal error: {}", scan::panic_message(&*panic));
+            tracing::error!(scan = %id, %reason, "scan panicked");
             publish(
-                session,
-                cell,
+                ctx.session,
+                ctx.cell,
                 &id,
                 &ScanState::Failed {
-                    reason: "risd is stopping".into(),
+                    reason: reason.clone(),
                 },
             );
-            continue;
-        }
-        let options = ScanOptions {
-            only: job.sensors.as_deref(),
-            keep_captures,
-            part: job.part.and_then(|i| parts.get(i)),
-        };
-        let result = scan::run(
-            cell,
-            &mut pairs,
-            options,
-            data_dir,
-            &id,
-            &|| stopping.load(Ordering::SeqCst),
-            &|s| {
-                if !matches!(s, ScanState::Done) {
-                    publish(session, cell, &id, s);
-                }
-            },
-        );
-        match result {
-            Ok((report, dir)) => {
-                let mut names: Vec<String> =
-                    report.sensors.iter().map(|s| s.sensor.clone()).collect();
-                names.push("merged".into());
-                for name in names {
-                    publish_file(
-                        session,
-                        &format!("ris/{cell}/scans/{id}/cloud/{name}"),
-                        &dir.join(format!("{name}.ply")),
-                    );
-                }
-                if report.inspection.is_some() {
-                    publish_file(
-                        session,
-                        &format!("ris/{cell}/scans/{id}/report"),
-                        &dir.join("report.json"),
-                    );
-                }
-                let done = serde_json::json!({
-                    "state": "done",
-                    "merged_points": report.merged_points,
-                    "compute_after_last_frame": report.compute_after_last_frame,
-                    "sensors": report.sensors,
-                    "merge": report.merge,
-                    "inspection": report.inspection,
-                    "total": report.total,
-                });
-                let key = format!("ris/{cell}/scans/{id}/state");
-                if let Err(e) = session.put(&key, done.to_string()).wait() {
-                    tracing::warn!(%key, error = %e, "state publication failed");
-                }
-                if let Ok(mut s) = status.lock() {
-                    s.last_scan = Some(id.clone());
-                }
-                tracing::info!(scan = %id, points = report.merged_points, "scan done");
+            if let Ok(mut s) = ctx.status.lock() {
+                s.last_error = Some(format!("{id}: {reason}"));
             }
-            Err(e) => {
-                tracing::warn!(scan = %id, error = %format!("{e:#}"), "scan failed");
-                if let Ok(mut s) = status.lock() {
-                    s.last_error = Some(format!("{id}: {e:#}"));
-                }
+            let partial = ctx.data_dir.join("scans").join(format!("{id}.partial"));
+            if partial.exists() {
+                let _ = std::fs::remove_dir_all(&partial);
             }
         }
-        if let Ok(mut s) = status.lock() {
+        if let Ok(mut s) = ctx.status.lock() {
             if s.state == "scanning" {
                 s.state = "ready".into();
+            }
+        }
+    }
+}
+
+fn run_job(job: Job, pairs: &mut [Pair], ctx: &WorkerContext) {
+    let id = job.scan_id;
+    let (session, cell) = (ctx.session, ctx.cell);
+    if ctx.stopping.load(Ordering::SeqCst) {
+        publish(
+            session,
+            cell,
+            &id,
+            &ScanState::Failed {
+                reason: "risd is stopping".into(),
+            },
+        );
+        return;
+    }
+    let options = ScanOptions {
+        only: job.sensors.as_deref(),
+        keep_captures: ctx.storage.keep_captures,
+        part: job.part.and_then(|i| ctx.parts.get(i)),
+        tag: job.tag.as_deref(),
+    };
+    let result = scan::run(
+        cell,
+        pairs,
+        options,
+        ctx.data_dir,
+        &id,
+        &|| ctx.stopping.load(Ordering::SeqCst),
+        &|s| {
+            ctx.heartbeat.beat();
+            if !matches!(s, ScanState::Done) {
+                publish(session, cell, &id, s);
+            }
+        },
+    );
+    // Retention before the end state goes out: a client that sees `done` sees the store as
+    // it stays.
+    match store::retention(
+        ctx.data_dir,
+        ctx.storage.keep_scans,
+        ctx.storage.max_age_days,
+    ) {
+        Ok(removed) => {
+            for name in removed {
+                tracing::info!(scan = %name, "removed (retention)");
+            }
+        }
+        Err(e) => tracing::warn!(error = %format!("{e:#}"), "retention failed"),
+    }
+    match result {
+        Ok((report, dir)) => {
+            let mut names: Vec<String> = report.sensors.iter().map(|s| s.sensor.clone()).collect();
+            names.push("merged".into());
+            for name in names {
+                publish_file(
+                    session,
+                    &format!("ris/{cell}/scans/{id}/cloud/{name}"),
+                    &dir.join(format!("{name}.ply")),
+                );
+            }
+            if report.inspection.is_some() {
+                publish_file(
+                    session,
+                    &format!("ris/{cell}/scans/{id}/report"),
+                    &dir.join("report.json"),
+                );
+            }
+            let done = serde_json::json!({
+                "state": "done",
+                "merged_points": report.merged_points,
+                "compute_after_last_frame": report.compute_after_last_frame,
+                "sensors": report.sensors,
+                "merge": report.merge,
+                "inspection": report.inspection,
+                "total": report.total,
+            });
+            let key = state_key(cell, &id);
+            if let Err(e) = session.put(&key, done.to_string()).wait() {
+                tracing::warn!(%key, error = %e, "state publication failed");
+            }
+            if let Ok(mut s) = ctx.status.lock() {
+                s.last_scan = Some(id.clone());
+            }
+            tracing::info!(scan = %id, points = report.merged_points, "scan done");
+        }
+        Err(e) => {
+            // scan::run has published `failed` with the reason.
+            tracing::warn!(scan = %id, error = %format!("{e:#}"), "scan failed");
+            if let Ok(mut s) = ctx.status.lock() {
+                s.last_error = Some(format!("{id}: {e:#}"));
             }
         }
     }
@@ -440,43 +597,12 @@ fn publish_file(session: &Session, key: &str, path: &Path) {
     }
 }
 
-/// The stored results of finished scans: (key, file) for `<id>/report` (the scan's JSON) and
-/// `<id>/cloud/<sensor>`, and the ids. Blocking directory walk: run off the async runtime.
-fn stored_items(cell: &str, data_dir: &Path) -> (Vec<String>, Vec<(String, PathBuf)>) {
-    let mut ids = Vec::new();
-    let mut items = Vec::new();
-    let Ok(entries) = std::fs::read_dir(data_dir.join("scans")) else {
-        return (ids, items);
-    };
-    for e in entries.flatten() {
-        let id = e.file_name().to_string_lossy().into_owned();
-        let dir: PathBuf = e.path();
-        if id.ends_with(".partial") || !dir.join("scan.json").is_file() {
-            continue;
-        }
-        // The inspection report when the scan inspected a part, else the scan's summary.
-        let report = Some(dir.join("report.json"))
-            .filter(|p| p.is_file())
-            .unwrap_or_else(|| dir.join("scan.json"));
-        items.push((format!("ris/{cell}/scans/{id}/report"), report));
-        if let Ok(files) = std::fs::read_dir(&dir) {
-            for f in files.flatten() {
-                let name = f.file_name().to_string_lossy().into_owned();
-                if let Some(sensor) = name.strip_suffix(".ply") {
-                    items.push((format!("ris/{cell}/scans/{id}/cloud/{sensor}"), f.path()));
-                }
-            }
-        }
-        ids.push(id);
-    }
-    (ids, items)
-}
-
-/// Answer `ris/<cell>/scans/**` from the finished scans on disk: `<id>/state`, `<id>/report`
-/// and `<id>/cloud/<sensor>`, for every key the query matches.
+/// Answer `ris/<cell>/scans/**` from the finished scans on disk: `<id>/state`, `<id>/report`,
+/// `<id>/cloud/<sensor>` and `<id>/deviation`, for every key the query matches.
 async fn handle_store(q: &Query, cell: &str, data_dir: &Path) {
     let (c, d) = (cell.to_string(), data_dir.to_path_buf());
-    let Ok((ids, items)) = tokio::task::spawn_blocking(move || stored_items(&c, &d)).await else {
+    let Ok((ids, items)) = tokio::task::spawn_blocking(move || store::stored_items(&c, &d)).await
+    else {
         return;
     };
     let asked = q.key_expr().clone();
@@ -486,7 +612,7 @@ async fn handle_store(q: &Query, cell: &str, data_dir: &Path) {
             .filter(|k| asked.intersects(k))
     };
     for id in ids {
-        if let Some(k) = matching(&format!("ris/{cell}/scans/{id}/state")) {
+        if let Some(k) = matching(&state_key(cell, &id)) {
             let _ = q.reply(k, r#"{"state":"done"}"#).await;
         }
     }
@@ -523,7 +649,7 @@ mod tests {
     }
 
     fn req(json: &str) -> ScanRequest {
-        serde_json::from_str(json).expect("request")
+        ScanRequest::parse(json.as_bytes()).expect("request")
     }
 
     #[test]

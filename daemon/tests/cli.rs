@@ -503,6 +503,35 @@ fn inspect_writes_deviation_map_report_and_exit_status() {
         s(&out2),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
+    // A cloud of one corner of the part measures too little of it for a verdict: not
+    // measured, exit status 4, never a pass.
+    let mut corner = cloud.clone();
+    corner.points.retain(|p| p[0] < -70.0);
+    corner.confidence.truncate(corner.points.len());
+    let corner_path = dir.path().join("corner.ply");
+    corner.write_ply(&corner_path).expect("ply");
+    let out4 = dir.path().join("report4");
+    let o = ris(&[
+        "inspect",
+        "--cloud",
+        s(&corner_path),
+        "--cad",
+        s(&cad),
+        "--tolerance",
+        "1.0",
+        "--out",
+        s(&out4),
+    ]);
+    assert_eq!(o.status.code(), Some(4), "{}", stderr(&o));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("NOT MEASURED"));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out4.join("report.json")).expect("report"))
+            .expect("json");
+    assert_eq!(report["verdict"], "not_measured");
+    assert!(
+        report["coverage"]["fraction"].as_f64().expect("coverage") < 0.3,
+        "{report}"
+    );
     // A datums file with a negative radius is refused by field.
     std::fs::write(
         &datums,

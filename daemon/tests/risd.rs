@@ -58,6 +58,11 @@ fn config_errors_name_the_field() {
             "sensor[0].to_common",
         ),
         ("[cell]\nname = \"c\"\n[zenoh]\nmode = \"router\"\n", "zenoh.mode"),
+        (&format!("{ok}[workers]\nqueue = 1000000000000000\n"), "workers.queue"),
+        (&format!("{ok}exposure_us = 1e300\n"), "sensor[0].exposure_us"),
+        (&format!("[zenoh]\nlisten = [\"tcp/127.0.0.1:99999\"]\n{ok}"), "zenoh.listen"),
+        (&format!("[zenoh]\nlisten = [\"foo/bar\"]\n{ok}"), "zenoh.listen"),
+        (&format!("[zenoh]\nconnect = [\"tcp/127.0.0.1\"]\n{ok}"), "zenoh.connect"),
         (
             &format!("{ok}[[part]]\nid = \"p\"\ncad = \"p.stl\"\ntolerance = 0.0\n"),
             "part[0].tolerance",
@@ -242,4 +247,80 @@ fn a_fault_in_one_pair_fails_that_scan_and_the_next_succeeds() {
     .expect("subset scan");
     assert_eq!(report.sensors.len(), 1);
     assert_eq!(report.sensors[0].sensor, "s3");
+
+    // A panic inside a scan (here in the merge stage's state report) fails that scan with a
+    // reason, publishes `failed`, leaves no `.partial`, and the pairs scan again afterwards.
+    let failed = std::sync::Mutex::new(None);
+    let err = ris_daemon::scan::run(
+        "mock",
+        &mut pairs,
+        ScanOptions {
+            only: Some(&only),
+            ..ScanOptions::default()
+        },
+        data.path(),
+        "d",
+        &|| false,
+        &|s| match s {
+            ris_daemon::scan::ScanState::Merging => panic!("injected fault in the merge"),
+            ris_daemon::scan::ScanState::Failed { reason } => {
+                *failed.lock().expect("lock") = Some(reason.clone())
+            }
+            _ => {}
+        },
+    )
+    .expect_err("the panicking scan fails");
+    assert!(format!("{err:#}").contains("injected fault"), "{err:#}");
+    let reason = failed
+        .lock()
+        .expect("lock")
+        .clone()
+        .expect("failed published");
+    assert!(reason.contains("injected fault"), "{reason}");
+    assert!(!data.path().join("scans/d").exists() && !data.path().join("scans/d.partial").exists());
+    // Every early exit publishes `failed` too: a scan id that exists already.
+    let failed = std::sync::Mutex::new(None);
+    ris_daemon::scan::run(
+        "mock",
+        &mut pairs,
+        ScanOptions::default(),
+        data.path(),
+        "b",
+        &|| false,
+        &|s| {
+            if let ris_daemon::scan::ScanState::Failed { reason } = s {
+                *failed.lock().expect("lock") = Some(reason.clone())
+            }
+        },
+    )
+    .expect_err("scan b exists");
+    assert!(failed
+        .lock()
+        .expect("lock")
+        .as_deref()
+        .is_some_and(|r| r.contains("exists already")));
+    assert!(
+        data.path().join("scans/b/merged.ply").is_file(),
+        "the finished scan b is kept"
+    );
+    let (report, _) = ris_daemon::scan::run(
+        "mock",
+        &mut pairs,
+        ScanOptions {
+            only: Some(&only),
+            tag: Some("after the panic"),
+            ..ScanOptions::default()
+        },
+        data.path(),
+        "e",
+        &|| false,
+        &|_| {},
+    )
+    .expect("the scan after the panic succeeds");
+    assert_eq!(report.tag.as_deref(), Some("after the panic"));
+    let stored: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(data.path().join("scans/e/scan.json")).expect("scan.json"),
+    )
+    .expect("json");
+    assert_eq!(stored["tag"], "after the panic");
 }

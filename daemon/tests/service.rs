@@ -205,7 +205,7 @@ fn sigkill_mid_scan_leaves_no_scan_that_looks_complete() {
             "{name} looks finished after SIGKILL"
         );
     }
-    let removed = ris_daemon::scan::housekeeping(data.path(), 50, 30).expect("housekeeping");
+    let removed = ris_daemon::store::housekeeping(data.path(), 50, 30).expect("housekeeping");
     assert_eq!(removed.len(), entries.len());
     assert_eq!(std::fs::read_dir(&scans).expect("scans").count(), 0);
 }

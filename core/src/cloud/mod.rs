@@ -42,6 +42,37 @@ impl PointCloud {
         cloud
     }
 
+    /// Drop points with a NaN or infinite coordinate (and their confidence and pixel);
+    /// returns how many were dropped.
+    pub fn retain_finite(&mut self) -> usize {
+        let before = self.points.len();
+        let keep: Vec<bool> = self
+            .points
+            .iter()
+            .map(|p| p.iter().all(|c| c.is_finite()))
+            .collect();
+        let mut k = 0;
+        self.points.retain(|_| {
+            k += 1;
+            keep[k - 1]
+        });
+        if self.pixels.len() == before {
+            let mut k = 0;
+            self.pixels.retain(|_| {
+                k += 1;
+                keep[k - 1]
+            });
+        }
+        if self.confidence.len() == before {
+            let mut k = 0;
+            self.confidence.retain(|_| {
+                k += 1;
+                keep[k - 1]
+            });
+        }
+        before - self.points.len()
+    }
+
     /// Number of points.
     pub fn len(&self) -> usize {
         self.points.len()
@@ -172,12 +203,27 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
         _ => return Err("vertex has no x, y, z properties".into()),
     };
     let ic = idx("confidence");
+    let body = &bytes[end..];
+    // The header's count is checked against the bytes that follow before anything is
+    // allocated: an ASCII vertex takes at least one character and one separator per property.
+    let sizes: Vec<usize> = props.iter().filter_map(|(t, _)| type_size(t)).collect();
+    let stride: usize = sizes.iter().sum();
+    let per_vertex = match enc {
+        Encoding::Ascii => 2 * props.len(),
+        _ => stride,
+    };
+    let needed = count.saturating_mul(per_vertex);
+    if needed > body.len() + 1 {
+        return Err(format!(
+            "truncated: the header claims {count} vertices, which need at least {needed} bytes; the file has {} after the header",
+            body.len()
+        ));
+    }
     let mut cloud = PointCloud {
         points: Vec::with_capacity(count),
         confidence: Vec::with_capacity(count),
         pixels: Vec::new(),
     };
-    let body = &bytes[end..];
     let mut vals = vec![0f64; props.len()];
     match enc {
         Encoding::Ascii => {
@@ -198,8 +244,6 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
             }
         }
         _ => {
-            let sizes: Vec<usize> = props.iter().filter_map(|(t, _)| type_size(t)).collect();
-            let stride: usize = sizes.iter().sum();
             if body.len() < stride * count {
                 return Err(format!(
                     "truncated: {count} vertices need {} bytes, file has {}",
@@ -219,6 +263,13 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
                 cloud.confidence.push(ic.map_or(1.0, |c| vals[c] as f32));
             }
         }
+    }
+    let dropped = cloud.retain_finite();
+    if dropped > 0 {
+        tracing::warn!(
+            dropped,
+            "PLY points with a NaN or infinite coordinate left out"
+        );
     }
     Ok(cloud)
 }

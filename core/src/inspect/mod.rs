@@ -8,13 +8,15 @@
 //! rigid misalignment acts) and trimmed iteratively (fit, drop points whose deviation departs
 //! from the trusted median by more than an annealed threshold, refit, until the set converges).
 
+mod coverage;
 mod output;
 mod regions;
 mod report;
 
+pub use coverage::{coverage, Coverage};
 pub use output::{deviation_colour, write_deviation_ply, write_deviation_png};
 pub use regions::{out_of_tolerance_regions, Region};
-pub use report::{DatumResidual, Report, Statistics};
+pub use report::{DatumResidual, Report, Statistics, NOT_MEASURED};
 
 use std::path::Path;
 
@@ -81,6 +83,11 @@ pub struct InspectParams {
     pub max_iterations: usize,
     /// Points used for fitting (a uniform subsample of the cloud; deviations use every point).
     pub fit_points: usize,
+    /// Minimum fraction of the CAD surface that must have been measured for a verdict; below
+    /// it the part is `not_measured`.
+    pub min_coverage: f64,
+    /// Minimum points in each datum region for a verdict.
+    pub min_datum_points: usize,
 }
 
 impl Default for InspectParams {
@@ -91,6 +98,8 @@ impl Default for InspectParams {
             init: None,
             max_iterations: 60,
             fit_points: 50_000,
+            min_coverage: 0.5,
+            min_datum_points: 10,
         }
     }
 }
@@ -111,6 +120,28 @@ pub fn inspect(
     cad: &SignedDistance,
     params: &InspectParams,
 ) -> Result<Inspection> {
+    // A point with a NaN or infinite coordinate carries no measurement (and would stall the
+    // rotation fits): left out, and counted in the report.
+    let finite: Vec<[f64; 3]>;
+    let mut non_finite = 0;
+    let cloud = if cloud.iter().all(|p| p.iter().all(|c| c.is_finite())) {
+        cloud
+    } else {
+        finite = cloud
+            .iter()
+            .filter(|p| p.iter().all(|c| c.is_finite()))
+            .copied()
+            .collect();
+        non_finite = cloud.len() - finite.len();
+        &finite
+    };
+    if !(0.0..=1.0).contains(&params.min_coverage) {
+        return Err(Error::invalid(
+            "inspection",
+            "min_coverage",
+            format!("{} must be within 0 … 1", params.min_coverage),
+        ));
+    }
     if cloud.len() < 10 {
         return Err(Error::Insufficient(format!(
             "the cloud has {} points; inspection needs at least 10",
@@ -137,14 +168,29 @@ pub fn inspect(
     };
     let points = to_cad(cloud, &pose);
     let deviations = cad.deviations(&points);
+    // Coverage counts the points that lie on the nominal surface (within the deformation a
+    // part may plausibly have), so a cloud registered next to the CAD measures nothing.
+    let near = (20.0 * params.tolerance).max(10.0);
+    let on_surface: Vec<[f64; 3]> = points
+        .iter()
+        .zip(&deviations)
+        .step_by((points.len() / params.fit_points.max(1)).max(1))
+        .filter(|(_, d)| d.abs() <= near)
+        .map(|(p, _)| *p)
+        .collect();
+    let coverage = coverage::coverage(cad.mesh(), &on_surface, params.min_coverage);
     let report = report::build(
         &points,
         &deviations,
         &pose,
         params,
-        mode,
-        iterations,
-        trusted_fit,
+        report::Fit {
+            mode,
+            iterations,
+            trusted_fraction: trusted_fit,
+        },
+        coverage,
+        non_finite,
     );
     tracing::info!(verdict = %report.verdict, rms = report.statistics.rms, mode, "inspected");
     Ok(Inspection {
@@ -485,7 +531,8 @@ fn coarse_alignment(pts: &[[f64; 3]], cad: &SignedDistance) -> Pose {
     ] {
         let f = nalgebra::Matrix3::from_diagonal(&Vector3::from(flips));
         let r = a_cad * f * a_cloud.transpose();
-        let rot = UnitQuaternion::from_matrix(&r);
+        let rot =
+            UnitQuaternion::from_rotation_matrix(&nalgebra::Rotation3::from_matrix_unchecked(r));
         candidates.push(Pose::from_parts((c_cad - rot * c_cloud).into(), rot));
     }
     for cand in candidates {

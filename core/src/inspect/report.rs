@@ -3,7 +3,7 @@
 
 use serde::Serialize;
 
-use super::{in_datums, out_of_tolerance_regions, InspectParams, Region};
+use super::{in_datums, out_of_tolerance_regions, Coverage, InspectParams, Region};
 use crate::register::Pose;
 
 /// Deviation statistics over all points, mm.
@@ -32,6 +32,8 @@ pub struct Statistics {
     /// Points beyond the CAD surface's open boundary (no nominal there), left out of the
     /// statistics and the verdict.
     pub beyond_cad: usize,
+    /// Input points with a NaN or infinite coordinate, left out.
+    pub non_finite: usize,
 }
 
 /// How well a datum region sits on its nominal surface.
@@ -62,13 +64,27 @@ pub struct Registration {
     pub trusted_fraction: f64,
 }
 
+/// The verdict that means the data cannot decide: too little of the part (or of a datum)
+/// was measured.
+pub const NOT_MEASURED: &str = "not_measured";
+
+/// How the registration went, for the report.
+pub(super) struct Fit<'a> {
+    pub mode: &'a str,
+    pub iterations: usize,
+    pub trusted_fraction: f64,
+}
+
 /// The report.
 #[derive(Clone, Debug, Serialize)]
 pub struct Report {
-    /// "pass" or "fail".
+    /// "pass", "fail", or "not_measured" (too little of the part or of a datum measured for
+    /// a verdict).
     pub verdict: String,
-    /// Why it failed (empty on pass).
+    /// Why it failed or was not measured (empty on pass).
     pub reasons: Vec<String>,
+    /// How much of the CAD surface was measured.
+    pub coverage: Coverage,
     /// Tolerance, mm.
     pub tolerance_mm: f64,
     /// Registration summary.
@@ -95,9 +111,9 @@ pub(super) fn build(
     dev: &[f64],
     pose: &Pose,
     params: &InspectParams,
-    mode: &str,
-    iterations: usize,
-    trusted_fraction: f64,
+    fit: Fit,
+    coverage: Coverage,
+    non_finite: usize,
 ) -> Report {
     let tol = params.tolerance;
     let mut sorted: Vec<f64> = dev.iter().copied().filter(|d| d.is_finite()).collect();
@@ -118,8 +134,20 @@ pub(super) fn build(
         p95: percentile(&sorted, 0.95),
         within_tolerance: sorted.iter().filter(|d| d.abs() <= tol).count() as f64 / n,
         beyond_cad,
+        non_finite,
     };
     let mut reasons = Vec::new();
+    let mut unmeasured = Vec::new();
+    if statistics.points == 0 {
+        unmeasured.push("no measured point lies on the CAD surface".to_string());
+    }
+    if coverage.fraction < coverage.minimum {
+        unmeasured.push(format!(
+            "only {:.1} % of the CAD surface was measured (minimum {:.1} %)",
+            100.0 * coverage.fraction,
+            100.0 * coverage.minimum
+        ));
+    }
     let datums: Vec<DatumResidual> = params
         .datums
         .iter()
@@ -131,9 +159,10 @@ pub(super) fn build(
             v.iter_mut().for_each(|e| *e = e.abs());
             v.sort_by(f64::total_cmp);
             let p99 = percentile(&v, 0.99);
-            let in_tolerance = !v.is_empty() && p99 <= tol;
-            if v.is_empty() {
-                reasons.push(format!("datum {} was not measured (no points within {} mm of it)", d.name, d.radius));
+            let measured = v.len() >= params.min_datum_points.max(1);
+            let in_tolerance = measured && p99 <= tol;
+            if !measured {
+                unmeasured.push(format!("datum {} was not measured ({} points within {} mm of it, {} needed)", d.name, v.len(), d.radius, params.min_datum_points.max(1)));
             } else if !in_tolerance {
                 reasons.push(format!("datum {} is out of tolerance: 99 % of its deviations within {p99:.3} mm > {tol} mm", d.name));
             }
@@ -149,18 +178,23 @@ pub(super) fn build(
         ));
     }
     let m = pose.to_homogeneous();
+    let verdict = if !unmeasured.is_empty() {
+        NOT_MEASURED
+    } else if reasons.is_empty() {
+        "pass"
+    } else {
+        "fail"
+    };
+    unmeasured.extend(reasons);
     Report {
-        verdict: if reasons.is_empty() {
-            "pass".into()
-        } else {
-            "fail".into()
-        },
-        reasons,
+        verdict: verdict.into(),
+        reasons: unmeasured,
+        coverage,
         tolerance_mm: tol,
         registration: Registration {
-            mode: mode.into(),
-            iterations,
-            trusted_fraction,
+            mode: fit.mode.into(),
+            iterations: fit.iterations,
+            trusted_fraction: fit.trusted_fraction,
         },
         transform: std::array::from_fn(|i| std::array::from_fn(|j| m[(i, j)])),
         statistics,

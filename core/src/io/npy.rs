@@ -112,9 +112,13 @@ pub fn read<T: NpyElement>(path: &Path) -> Result<(Vec<usize>, Vec<T>)> {
         .filter(|s| !s.is_empty())
         .map(|s| s.parse::<usize>().map_err(|_| bad("bad shape")))
         .collect::<Result<_>>()?;
-    let n: usize = shape.iter().product();
+    // The shape is checked against the bytes present before anything is allocated.
+    let n = shape
+        .iter()
+        .try_fold(1usize, |a, &d| a.checked_mul(d))
+        .ok_or_else(|| bad("shape too large"))?;
     let body = &bytes[hstart + hlen..];
-    if body.len() < n * T::SIZE {
+    if n.checked_mul(T::SIZE).is_none_or(|need| body.len() < need) {
         return Err(bad("truncated data"));
     }
     let data = body.chunks_exact(T::SIZE).take(n).map(T::get).collect();

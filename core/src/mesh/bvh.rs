@@ -133,6 +133,9 @@ impl Bvh {
 
     /// Nearest hit with `t` in `(t_min, t_max)`.
     pub fn intersect(&self, o: &Vec3, d: &Vec3, t_min: f64, t_max: f64) -> Option<RayHit> {
+        if self.mesh.triangles.is_empty() {
+            return None;
+        }
         let inv = [1.0 / d.x, 1.0 / d.y, 1.0 / d.z];
         let mut best: Option<RayHit> = None;
         let mut limit = t_max;

@@ -195,6 +195,9 @@ impl Bvh {
         p: &Vec3,
         closest: impl Fn(&Vec3, &Vec3, &Vec3, &Vec3) -> (Vec3, F),
     ) -> Option<(u32, Vec3, F, f64)> {
+        if self.mesh().triangles.is_empty() || !p.iter().all(|c| c.is_finite()) {
+            return None;
+        }
         let mut best: Option<(u32, Vec3, F, f64)> = None;
         let mut best_d2 = f64::INFINITY;
         let mut stack = [(0u32, 0.0f64); 64];

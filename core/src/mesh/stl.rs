@@ -67,9 +67,31 @@ pub(super) fn read(path: &Path) -> Result<TriangleMesh> {
     {
         return Err(bad("mesh has a non-finite vertex".into()));
     }
+    let (mesh, degenerate) = weld(tris);
+    if mesh.triangles.is_empty() {
+        return Err(bad(format!(
+            "mesh has no usable triangle: all {degenerate} have zero area (repeated or collinear corners)"
+        )));
+    }
+    if degenerate > 0 {
+        tracing::warn!(path = %path.display(), degenerate, "zero-area triangles left out of the mesh");
+    }
+    Ok(mesh)
+}
+
+/// Weld vertices by exact position and drop zero-area triangles (repeated or collinear
+/// corners: they have no normal and no surface); returns the mesh and how many were dropped.
+pub(crate) fn weld(tris: Vec<[Vec3; 3]>) -> (TriangleMesh, usize) {
     let mut mesh = TriangleMesh::default();
     let mut index: HashMap<[u64; 3], u32> = HashMap::new();
+    let mut degenerate = 0;
     for t in tris {
+        let scale = (t[1] - t[0]).norm().max((t[2] - t[0]).norm());
+        let area2 = (t[1] - t[0]).cross(&(t[2] - t[0])).norm();
+        if area2.is_nan() || area2 <= 1e-12 * scale * scale {
+            degenerate += 1;
+            continue;
+        }
         let ids = t.map(|v| {
             *index
                 .entry([v.x.to_bits(), v.y.to_bits(), v.z.to_bits()])
@@ -80,9 +102,11 @@ pub(super) fn read(path: &Path) -> Result<TriangleMesh> {
         });
         if ids[0] != ids[1] && ids[1] != ids[2] && ids[0] != ids[2] {
             mesh.triangles.push(ids);
+        } else {
+            degenerate += 1;
         }
     }
-    Ok(mesh)
+    (mesh, degenerate)
 }
 
 fn is_binary(bytes: &[u8]) -> bool {
@@ -90,7 +114,7 @@ fn is_binary(bytes: &[u8]) -> bool {
         return false;
     }
     let n = u32::from_le_bytes([bytes[80], bytes[81], bytes[82], bytes[83]]) as usize;
-    bytes.len() == 84 + n * 50
+    n.checked_mul(50).and_then(|b| b.checked_add(84)) == Some(bytes.len())
 }
 
 /// Write a binary STL (used by tests and the simulator's fixtures).

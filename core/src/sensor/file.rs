@@ -142,11 +142,11 @@ impl Sensor {
             &f.camera.t,
         )?;
         let p = &f.projector;
-        if p.width == 0 || p.height == 0 {
+        if p.width == 0 || p.height == 0 || p.width > MAX_SIDE || p.height > MAX_SIDE {
             return Err(Error::invalid(
                 ctx,
                 "projector.width/height",
-                "must be positive",
+                format!("{} x {} must be within 1 … {MAX_SIDE}", p.width, p.height),
             ));
         }
         let projector = match (&p.k, &p.r, &p.t) {
@@ -270,6 +270,11 @@ fn check_rotation(ctx: &str, field: &str, r: &Mat3) -> Result<()> {
     Ok(())
 }
 
+/// Largest image side, pixels.
+pub const MAX_SIDE: u32 = 32_768;
+/// Largest image, pixels.
+pub const MAX_PIXELS: u64 = 1 << 28;
+
 #[allow(clippy::too_many_arguments)]
 fn pinhole(
     ctx: &str,
@@ -286,6 +291,13 @@ fn pinhole(
             ctx,
             format!("{name}.width/height"),
             "must be positive",
+        ));
+    }
+    if width > MAX_SIDE || height > MAX_SIDE || u64::from(width) * u64::from(height) > MAX_PIXELS {
+        return Err(Error::invalid(
+            ctx,
+            format!("{name}.width/height"),
+            format!("{width} x {height} is beyond the largest image RIS handles ({MAX_SIDE} per side, {MAX_PIXELS} pixels)"),
         ));
     }
     for (i, row) in k.iter().enumerate() {

@@ -47,7 +47,8 @@ impl KdTree {
         }
         let mut best = (usize::MAX, f64::INFINITY);
         self.nearest_in(q, 0, self.points.len(), &mut best);
-        Some((self.index[best.0] as usize, best.1))
+        // A NaN query compares false with everything and finds nothing.
+        (best.0 != usize::MAX).then(|| (self.index[best.0] as usize, best.1))
     }
 
     /// Nearest point to `q` closer than `sqrt(max_d2)`, pruning everything farther: cheap for

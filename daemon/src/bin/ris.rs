@@ -276,7 +276,8 @@ enum Command {
         out: PathBuf,
     },
     /// Ask a running risd for a scan, follow its progress and write the clouds and report
-    /// into OUT/<scan id>/ (exit status 3 when the inspected part fails)
+    /// into OUT/<scan id>/ (exit status 3 when the inspected part fails, 4 when it was not
+    /// measured)
     Scan {
         /// Zenoh endpoint of the daemon.
         #[arg(long, default_value = "tcp/127.0.0.1:7447")]
@@ -306,8 +307,8 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
-    /// Inspect a cloud against its CAD model: deviation map, report and pass/fail verdict
-    /// (exit status 3 when the part fails).
+    /// Inspect a cloud against its CAD model: deviation map, report and verdict (exit status 3
+    /// when the part fails, 4 when too little of it or of a datum was measured for a verdict).
     Inspect {
         /// Measured cloud (PLY).
         #[arg(long)]
@@ -321,6 +322,9 @@ enum Command {
         /// Tolerance on |deviation|, mm.
         #[arg(long)]
         tolerance: f64,
+        /// Minimum fraction of the CAD surface the cloud must cover for a verdict (0 … 1).
+        #[arg(long, default_value_t = 0.5)]
+        min_coverage: f64,
         /// Output directory (deviation.ply, deviation.png, report.json).
         #[arg(long)]
         out: PathBuf,
@@ -376,6 +380,16 @@ enum Command {
         #[arg(long)]
         scene: Option<PathBuf>,
     },
+}
+
+/// Distinct exit statuses so scripts can branch on the verdict: 3 for a failed part, 4 for
+/// one that was not measured (neither pass nor fail).
+fn verdict_exit_code(verdict: &str) -> Option<i32> {
+    match verdict {
+        "pass" => None,
+        ris_core::inspect::NOT_MEASURED => Some(4),
+        _ => Some(3),
+    }
 }
 
 fn main() -> Result<()> {
@@ -526,8 +540,8 @@ fn main() -> Result<()> {
                 println!("inspection: {}", v.to_uppercase());
             }
             println!("wrote {}", r.dir.display());
-            if r.verdict.as_deref() == Some("fail") {
-                std::process::exit(3);
+            if let Some(code) = r.verdict.as_deref().and_then(verdict_exit_code) {
+                std::process::exit(code);
             }
         }
         Command::Inspect {
@@ -535,12 +549,19 @@ fn main() -> Result<()> {
             cad,
             datums,
             tolerance,
+            min_coverage,
             out,
         } => {
-            let report = commands::inspect::run(&cloud, &cad, datums.as_deref(), tolerance, &out)?;
-            if report.verdict != "pass" {
-                // Distinct exit status for a failed part, so scripts can branch on the verdict.
-                std::process::exit(3);
+            let report = commands::inspect::run(
+                &cloud,
+                &cad,
+                datums.as_deref(),
+                tolerance,
+                min_coverage,
+                &out,
+            )?;
+            if let Some(code) = verdict_exit_code(&report.verdict) {
+                std::process::exit(code);
             }
         }
         Command::Experiment(ExperimentCommand::Completeness { scene, json, out }) => {

@@ -41,9 +41,11 @@ fn load(args: &Args) -> Result<CellConfig> {
         }
     };
     if !args.listen.is_empty() {
+        ris_daemon::config::check_endpoints("command line", "--listen", &args.listen)?;
         config.zenoh.listen = args.listen.clone();
     }
     if !args.connect.is_empty() {
+        ris_daemon::config::check_endpoints("command line", "--connect", &args.connect)?;
         config.zenoh.connect = args.connect.clone();
     }
     if let Some(d) = &args.data_dir {
@@ -71,7 +73,7 @@ fn serve(config: CellConfig) -> Result<()> {
         .enable_all()
         .build()
         .context("starting the async runtime")?;
-    runtime.block_on(async move {
+    let served = runtime.block_on(async move {
         let shutdown = tokio_util::sync::CancellationToken::new();
         let signals = shutdown.clone();
         tokio::spawn(async move {
@@ -90,7 +92,10 @@ fn serve(config: CellConfig) -> Result<()> {
             signals.cancel();
         });
         ris_daemon::service::run(config, shutdown).await
-    })
+    });
+    // Preparation still running at SIGTERM is not waited for.
+    runtime.shutdown_timeout(std::time::Duration::from_secs(2));
+    served
 }
 
 fn main() -> Result<()> {
@@ -121,7 +126,8 @@ fn main() -> Result<()> {
         return serve(config);
     }
     let data_dir = &config.storage.data_dir;
-    for name in scan::housekeeping(
+    let _lock = ris_daemon::store::DataDirLock::acquire(data_dir)?;
+    for name in ris_daemon::store::housekeeping(
         data_dir,
         config.storage.keep_scans,
         config.storage.max_age_days,
@@ -140,6 +146,7 @@ fn main() -> Result<()> {
         only: None,
         keep_captures: config.storage.keep_captures,
         part: part.as_ref(),
+        tag: None,
     };
     let (report, dir) = scan::run(
         &config.name,

@@ -17,6 +17,7 @@ pub fn run(
     cad: &Path,
     datums: Option<&Path>,
     tolerance: f64,
+    min_coverage: f64,
     out: &Path,
 ) -> Result<Report> {
     anyhow::ensure!(
@@ -43,6 +44,7 @@ pub fn run(
         &InspectParams {
             tolerance,
             datums,
+            min_coverage,
             ..InspectParams::default()
         },
     )
@@ -59,10 +61,17 @@ pub fn run(
     let json = serde_json::to_string_pretty(&r.report)?;
     ris_core::io::write_atomic(&out.join("report.json"), json.as_bytes())?;
     let s = &r.report.statistics;
+    if s.non_finite > 0 {
+        println!(
+            "{} points with a NaN or infinite coordinate left out",
+            s.non_finite
+        );
+    }
     println!(
-        "{}: {} points, deviation mean {:+.3} mm, RMS {:.3} mm, range {:+.3} … {:+.3} mm, {:.1} % within ±{tolerance} mm ({} registration, {:.1} s)",
-        r.report.verdict.to_uppercase(),
+        "{}: {} points, {:.1} % of the CAD surface measured, deviation mean {:+.3} mm, RMS {:.3} mm, range {:+.3} … {:+.3} mm, {:.1} % within ±{tolerance} mm ({} registration, {:.1} s)",
+        r.report.verdict.to_uppercase().replace('_', " "),
         s.points,
+        100.0 * r.report.coverage.fraction,
         s.mean,
         s.rms,
         s.min,

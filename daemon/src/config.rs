@@ -28,6 +28,10 @@ pub struct ZenohSection {
     /// Endpoints to connect to.
     #[serde(default)]
     pub connect: Vec<String>,
+    /// Authentication and access control; without it anyone who reaches the endpoints may
+    /// scan and read.
+    #[serde(default)]
+    pub access: Option<AccessSection>,
 }
 
 impl Default for ZenohSection {
@@ -36,8 +40,25 @@ impl Default for ZenohSection {
             mode: peer(),
             listen: loopback(),
             connect: Vec::new(),
+            access: None,
         }
     }
+}
+
+/// `[zenoh.access]`: who may do what on the cell's keys (Zenoh user/password authentication
+/// and access control). Everything not granted here is denied, publishing under
+/// `ris/<cell>/**` included.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AccessSection {
+    /// Zenoh's user/password dictionary: one `user:password` per line (keep it mode 0600).
+    pub users: PathBuf,
+    /// Users who may start scans and read states, clouds, reports and health.
+    #[serde(default)]
+    pub operators: Vec<String>,
+    /// Users who may read states, clouds, reports and health, but not scan.
+    #[serde(default)]
+    pub readers: Vec<String>,
 }
 
 /// `[storage]`.
@@ -492,11 +513,29 @@ impl CellConfig {
                 min_coverage: p.min_coverage,
             });
         }
+        let mut zenoh = file.zenoh.clone();
+        if let Some(a) = &mut zenoh.access {
+            a.users = resolve(&a.users);
+            if a.operators.is_empty() && a.readers.is_empty() {
+                return Err(field(
+                    "zenoh.access",
+                    "names no operators and no readers: nobody could use the cell".into(),
+                ));
+            }
+            for u in a.operators.iter().chain(&a.readers) {
+                if u.is_empty() || u.contains([':', '\n']) {
+                    return Err(field(
+                        "zenoh.access.operators/readers",
+                        format!("{u:?} is not a user name"),
+                    ));
+                }
+            }
+        }
         let mut storage = file.storage.clone();
         storage.data_dir = resolve(&storage.data_dir);
         Ok(CellConfig {
             name: file.cell.name,
-            zenoh: file.zenoh,
+            zenoh,
             storage,
             workers: file.workers,
             sensors,
@@ -528,6 +567,22 @@ impl CellConfig {
                         "sensor {}: {} has no [to_common]; calibrate the cell (ris calibrate cell)",
                         s.name,
                         f.display()
+                    );
+                }
+            }
+        }
+        if let Some(a) = &self.zenoh.access {
+            let text = std::fs::read_to_string(&a.users)
+                .with_context(|| format!("zenoh.access.users: reading {}", a.users.display()))?;
+            let known: Vec<&str> = text
+                .lines()
+                .filter_map(|l| l.split_once(':').map(|(u, _)| u))
+                .collect();
+            for u in a.operators.iter().chain(&a.readers) {
+                if !known.contains(&u.as_str()) {
+                    bail!(
+                        "zenoh.access: user {u:?} has no password in {}",
+                        a.users.display()
                     );
                 }
             }

@@ -138,8 +138,96 @@ pub fn zenoh_config(mode: &str, listen: &[String], connect: &[String]) -> Result
     Ok(c)
 }
 
+/// Zenoh authentication and access control for `cell` (SPEC §12 keys): operators may query
+/// `scan`; operators and readers may query health and stored scans, subscribe to the cell's
+/// publications and see its liveliness; everything else, publishing under `ris/<cell>/**`
+/// included, is denied.
+pub fn apply_access(
+    config: &mut zenoh::Config,
+    cell: &str,
+    access: &crate::config::AccessSection,
+) -> Result<()> {
+    let both: Vec<&String> = access.operators.iter().chain(&access.readers).collect();
+    let mut subjects = Vec::new();
+    let mut policies = Vec::new();
+    if !access.operators.is_empty() {
+        subjects.push(serde_json::json!({"id": "operators", "usernames": access.operators}));
+        policies.push(serde_json::json!({"rules": ["scan"], "subjects": ["operators"]}));
+    }
+    if !both.is_empty() {
+        subjects.push(serde_json::json!({"id": "users", "usernames": both}));
+        policies
+            .push(serde_json::json!({"rules": ["read", "follow", "alive"], "subjects": ["users"]}));
+    }
+    let acl = serde_json::json!({
+        "enabled": true,
+        "default_permission": "deny",
+        "rules": [
+            {"id": "scan", "permission": "allow", "flows": ["ingress", "egress"],
+             "messages": ["query", "reply"], "key_exprs": [scan_key(cell)]},
+            {"id": "read", "permission": "allow", "flows": ["ingress", "egress"],
+             "messages": ["query", "reply"],
+             "key_exprs": [health_key(cell), format!("ris/{cell}/scans/**")]},
+            {"id": "follow", "permission": "allow", "flows": ["ingress"],
+             "messages": ["declare_subscriber"], "key_exprs": [format!("ris/{cell}/**")]},
+            {"id": "follow-out", "permission": "allow", "flows": ["egress"],
+             "messages": ["put"], "key_exprs": [format!("ris/{cell}/**")]},
+            {"id": "alive", "permission": "allow", "flows": ["ingress", "egress"],
+             "messages": ["liveliness_query", "declare_liveliness_subscriber", "liveliness_token", "reply"],
+             "key_exprs": [health_key(cell)]},
+        ],
+        "subjects": subjects,
+        "policies": policies,
+    });
+    let mut acl = acl;
+    // `follow-out` belongs to the same subjects as `follow`.
+    if let Some(p) = acl["policies"].as_array_mut().and_then(|p| p.last_mut()) {
+        if let Some(r) = p["rules"].as_array_mut() {
+            r.push("follow-out".into());
+        }
+    }
+    let users = access.users.display().to_string();
+    for (key, value) in [
+        (
+            "transport/auth/usrpwd/dictionary_file",
+            serde_json::to_string(&users)?,
+        ),
+        ("access_control", acl.to_string()),
+    ] {
+        config
+            .insert_json5(key, &value)
+            .map_err(|e| anyhow!("zenoh.access: {key}: {e}"))?;
+    }
+    Ok(())
+}
+
+/// A client configuration with `user`'s credentials (password from `password_file`, first
+/// line), for `ris scan` and tests against a cell with `[zenoh.access]`.
+pub fn client_config(connect: &[String], user: Option<(&str, &str)>) -> Result<zenoh::Config> {
+    let mut c = zenoh_config("client", &[], connect)?;
+    if let Some((user, password)) = user {
+        for (key, value) in [
+            ("transport/auth/usrpwd/user", serde_json::to_string(user)?),
+            (
+                "transport/auth/usrpwd/password",
+                serde_json::to_string(password)?,
+            ),
+        ] {
+            c.insert_json5(key, &value)
+                .map_err(|e| anyhow!("zenoh credentials {key}: {e}"))?;
+        }
+    }
+    Ok(c)
+}
+
 /// How long risd asks the network whether another daemon serves the same cell.
 const PEER_CHECK: Duration = Duration::from_millis(1500);
+
+/// Whether an endpoint listens on loopback only.
+fn is_loopback(endpoint: &str) -> bool {
+    let address = endpoint.split_once('/').map_or("", |(_, a)| a);
+    address.starts_with("127.") || address.starts_with("[::1]") || address.starts_with("localhost:")
+}
 
 /// Serve the cell until `shutdown` is cancelled; then stop accepting, let the running scan
 /// end (finished, or failed at the next exposure group), and close. The data directory is
@@ -158,7 +246,13 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
         tracing::info!(scan = %name, "removed");
     }
     let z = &config.zenoh;
-    let session = zenoh::open(zenoh_config(&z.mode, &z.listen, &z.connect)?)
+    let mut zc = zenoh_config(&z.mode, &z.listen, &z.connect)?;
+    if let Some(access) = &z.access {
+        apply_access(&mut zc, &cell, access)?;
+    } else if z.listen.iter().any(|e| !is_loopback(e)) {
+        tracing::warn!(listen = ?z.listen, "the cell listens beyond loopback without [zenoh.access]: anyone who reaches it may scan and read");
+    }
+    let session = zenoh::open(zc)
         .await
         .map_err(|e| anyhow!("opening the Zenoh session: {e}"))?;
     // One daemon per cell name on the network: two would both scan for one request.

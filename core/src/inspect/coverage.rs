@@ -117,7 +117,10 @@ mod tests {
             }
         }
         let c = coverage(&mesh, &pts, 0.5);
-        assert!((c.fraction - 0.6).abs() < 0.03, "{c:?}");
+        // The neighbourhood radius (4 spacings, 8 mm) counts a band past the measured edge.
+        let expected = (120.0 + c.radius_mm) / 200.0;
+        assert!((c.radius_mm - 8.0).abs() < 1e-9, "{c:?}");
+        assert!((c.fraction - expected).abs() < 0.02, "{c:?}");
         assert!((c.cad_area_mm2 - 20_000.0).abs() < 1e-6);
         let none = coverage(&mesh, &[[1e5, 0.0, 0.0], [1e5, 1.0, 0.0]], 0.5);
         assert_eq!(none.fraction, 0.0);

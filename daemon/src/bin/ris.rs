@@ -285,6 +285,12 @@ enum Command {
         /// Cell name.
         #[arg(long, default_value = "mock")]
         cell: String,
+        /// Zenoh user, for a cell with [zenoh.access].
+        #[arg(long, requires = "password_file")]
+        user: Option<String>,
+        /// File whose first line is the user's password.
+        #[arg(long, requires = "user")]
+        password_file: Option<PathBuf>,
         /// Scan mode (gray, adaptive, single-shot); the daemon's default when omitted.
         #[arg(long)]
         mode: Option<String>,
@@ -509,6 +515,8 @@ fn main() -> Result<()> {
         Command::Scan {
             connect,
             cell,
+            user,
+            password_file,
             mode,
             sensors,
             part,
@@ -527,6 +535,7 @@ fn main() -> Result<()> {
                 tag,
                 out,
                 timeout: std::time::Duration::from_secs(timeout_s),
+                credentials: user.zip(password_file),
             })?;
             println!(
                 "scan {}: {} merged points, {:.2} s of computation after the last frame",

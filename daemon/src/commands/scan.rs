@@ -30,6 +30,9 @@ pub struct ScanArgs {
     pub out: PathBuf,
     /// Give up after this long without the scan finishing.
     pub timeout: Duration,
+    /// Zenoh user and the file whose first line is its password, for a cell with
+    /// `[zenoh.access]`.
+    pub credentials: Option<(String, PathBuf)>,
 }
 
 /// The finished scan as received.
@@ -117,7 +120,19 @@ fn classify(key: &str, payload: Vec<u8>) -> Option<(String, Item)> {
 }
 
 async fn scan(args: &ScanArgs) -> Result<Arrived> {
-    let config = crate::service::zenoh_config("client", &[], &args.connect)?;
+    let password = match &args.credentials {
+        Some((user, file)) => {
+            let text = std::fs::read_to_string(file)
+                .with_context(|| format!("--password-file: reading {}", file.display()))?;
+            let password = text.lines().next().unwrap_or_default().to_string();
+            Some((user.clone(), password))
+        }
+        None => None,
+    };
+    let config = crate::service::client_config(
+        &args.connect,
+        password.as_ref().map(|(u, p)| (u.as_str(), p.as_str())),
+    )?;
     let session = zenoh::open(config)
         .await
         .map_err(|e| anyhow!("connecting to {:?}: {e}", args.connect))?;
@@ -314,6 +329,7 @@ mod tests {
         let mut args = ScanArgs {
             connect: vec!["tcp/127.0.0.1:7447".into()],
             cell: "mock".into(),
+            credentials: None,
             mode: None,
             sensors: vec![],
             inspect: None,

@@ -146,6 +146,32 @@ mod tests {
         );
     }
 
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig { failure_persistence: None, ..Default::default() })]
+
+        /// Any bytes: a request or a bounded error, never a panic.
+        #[test]
+        fn any_body_gives_a_request_or_a_bounded_error(body in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..512)) {
+            if let Err(e) = ScanRequest::parse(&body) {
+                proptest::prop_assert!(e.len() < 400, "{}", e);
+            }
+        }
+
+        /// JSON-shaped bodies with arbitrary field names and values.
+        #[test]
+        fn json_bodies_are_objects_or_refused(key in "[a-z_]{0,12}", value in "[ -~]{0,40}", array in proptest::prelude::any::<bool>()) {
+            let body = if array {
+                format!("[{value:?}]")
+            } else {
+                format!("{{{key:?}: {value:?}}}")
+            };
+            match ScanRequest::parse(body.as_bytes()) {
+                Ok(r) => proptest::prop_assert!(!array && r.tag.as_deref().is_none_or(|t| t.chars().count() <= MAX_TAG)),
+                Err(e) => proptest::prop_assert!(e.len() < 400, "{}", e),
+            }
+        }
+    }
+
     #[test]
     fn echoes_are_bounded() {
         assert_eq!(echo("s1"), "\"s1\"");

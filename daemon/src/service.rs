@@ -157,7 +157,7 @@ pub fn apply_access(
     if !both.is_empty() {
         subjects.push(serde_json::json!({"id": "users", "usernames": both}));
         policies
-            .push(serde_json::json!({"rules": ["read", "follow", "alive"], "subjects": ["users"]}));
+            .push(serde_json::json!({"rules": ["read", "follow", "follow-out", "alive"], "subjects": ["users"]}));
     }
     let acl = serde_json::json!({
         "enabled": true,
@@ -179,13 +179,6 @@ pub fn apply_access(
         "subjects": subjects,
         "policies": policies,
     });
-    let mut acl = acl;
-    // `follow-out` belongs to the same subjects as `follow`.
-    if let Some(p) = acl["policies"].as_array_mut().and_then(|p| p.last_mut()) {
-        if let Some(r) = p["rules"].as_array_mut() {
-            r.push("follow-out".into());
-        }
-    }
     let users = access.users.display().to_string();
     for (key, value) in [
         (

@@ -3,21 +3,16 @@
 //! cloud nor publish under the cell's keys; a reader reads but cannot scan or forge states; an
 //! operator scans.
 
-use std::io::{BufRead, BufReader};
+mod common;
+
 use std::path::Path;
-use std::process::{Command, Stdio};
 use std::sync::mpsc;
+
+use common::{free_port, Risd};
 use std::time::{Duration, Instant};
 
 use ris_daemon::service::client_config;
 use zenoh::Wait;
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .expect("a free port on 127.0.0.1")
-}
 
 fn open(endpoint: &str, user: Option<(&str, &str)>) -> Option<zenoh::Session> {
     let config = client_config(&[endpoint.to_string()], user).expect("client config");
@@ -58,32 +53,16 @@ fn only_authorised_users_scan_read_or_publish() {
     )
     .expect("cell");
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
-    let mut risd = Command::new(env!("CARGO_BIN_EXE_risd"))
-        .arg("--config")
-        .arg(&config)
-        .args(["--listen", &endpoint, "--data-dir"])
-        .arg(tmp.path().join("data"))
-        .env("RIS_LOG", "info")
-        .env("NO_COLOR", "1")
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("risd");
-    let stderr = risd.stderr.take().expect("stderr");
-    let (ready_tx, ready_rx) = mpsc::channel();
-    let log = std::thread::spawn(move || {
-        let mut lines = Vec::new();
-        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-            if line.contains("risd ready") {
-                let _ = ready_tx.send(());
-            }
-            lines.push(line);
-        }
-        lines
-    });
-    if ready_rx.recv_timeout(Duration::from_secs(60)).is_err() {
-        let _ = risd.kill();
-        panic!("risd never became ready: {:?}", log.join());
-    }
+    let data = tmp.path().join("data");
+    let mut risd = Risd::start(&[
+        "--config".as_ref(),
+        config.as_os_str(),
+        "--listen".as_ref(),
+        endpoint.as_ref(),
+        "--data-dir".as_ref(),
+        data.as_os_str(),
+    ]);
+    risd.wait_ready(Duration::from_secs(60));
 
     // The operator scans and follows the states; a reader follows them too.
     let plc = open(&endpoint, Some(("plc", "s3cret-plc"))).expect("the operator connects");
@@ -174,19 +153,6 @@ fn only_authorised_users_scan_read_or_publish() {
     drop((_plc_sub, _viewer_sub));
     let _ = plc.close().wait();
     let _ = viewer.close().wait();
-    let _ = Command::new("kill")
-        .args(["-TERM", &risd.id().to_string()])
-        .status();
-    let t = Instant::now();
-    while risd.try_wait().ok().flatten().is_none() && t.elapsed() < Duration::from_secs(20) {
-        std::thread::sleep(Duration::from_millis(100));
-    }
-    let _ = risd.kill();
-    let lines = log.join().expect("log");
-    assert!(
-        !lines
-            .iter()
-            .any(|l| l.contains("scan accepted") && l.contains("mallory")),
-        "{lines:#?}"
-    );
+    let (status, lines) = risd.terminate();
+    assert!(status.success(), "{lines:#?}");
 }

@@ -4,23 +4,19 @@
 //! data directory or cell name refuses to start while the first one's scan completes, and
 //! retention holds while the daemon runs.
 
-use std::io::{BufRead, BufReader};
+mod common;
+
+use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
+
+use common::{free_port, Risd};
 use std::time::{Duration, Instant};
 
 use zenoh::Wait;
 
 fn config_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../config")
-}
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .expect("a free port on 127.0.0.1")
 }
 
 /// A two-sensor cell from the mock cell's scenes (preparation takes a few seconds), keeping
@@ -41,78 +37,20 @@ fn cell_file(dir: &Path, name: &str) -> PathBuf {
     path
 }
 
-/// risd with its stderr collected on a thread.
-struct Daemon {
-    child: Child,
-    log: Option<std::thread::JoinHandle<Vec<String>>>,
-}
-
-impl Daemon {
-    fn start(config: &Path, data: &Path, listen: &str, connect: Option<&str>) -> Daemon {
-        let mut cmd = Command::new(env!("CARGO_BIN_EXE_risd"));
-        cmd.arg("--config")
-            .arg(config)
-            .args(["--listen", listen, "--data-dir"])
-            .arg(data)
-            .env("RIS_LOG", "info")
-            .env("NO_COLOR", "1")
-            .stderr(Stdio::piped());
-        if let Some(c) = connect {
-            cmd.args(["--connect", c]);
-        }
-        let mut child = cmd.spawn().expect("risd");
-        let stderr = child.stderr.take().expect("stderr");
-        let log = std::thread::spawn(move || {
-            BufReader::new(stderr)
-                .lines()
-                .map_while(Result::ok)
-                .collect::<Vec<_>>()
-        });
-        Daemon {
-            child,
-            log: Some(log),
-        }
+/// risd on `config` with `data` as its data directory, listening on `listen`.
+fn start(config: &Path, data: &Path, listen: &str, connect: Option<&str>) -> Risd {
+    let mut args: Vec<&OsStr> = vec![
+        "--config".as_ref(),
+        config.as_os_str(),
+        "--listen".as_ref(),
+        listen.as_ref(),
+        "--data-dir".as_ref(),
+        data.as_os_str(),
+    ];
+    if let Some(c) = connect {
+        args.extend(["--connect".as_ref(), c.as_ref()] as [&OsStr; 2]);
     }
-
-    /// Wait for the process to exit by itself; its status and log.
-    fn exit_within(mut self, limit: Duration) -> (std::process::ExitStatus, Vec<String>) {
-        let t = Instant::now();
-        loop {
-            if let Some(s) = self.child.try_wait().expect("wait") {
-                let log = self
-                    .log
-                    .take()
-                    .and_then(|h| h.join().ok())
-                    .unwrap_or_default();
-                return (s, log);
-            }
-            if t.elapsed() > limit {
-                let _ = self.child.kill();
-                let log = self
-                    .log
-                    .take()
-                    .and_then(|h| h.join().ok())
-                    .unwrap_or_default();
-                panic!("risd did not exit within {limit:?}: {log:#?}");
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
-    }
-
-    fn terminate(self) -> (std::process::ExitStatus, Vec<String>) {
-        let ok = Command::new("kill")
-            .args(["-TERM", &self.child.id().to_string()])
-            .status()
-            .is_ok_and(|s| s.success());
-        assert!(ok, "kill -TERM");
-        self.exit_within(Duration::from_secs(20))
-    }
-}
-
-impl Drop for Daemon {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-    }
+    Risd::start(&args)
 }
 
 fn client(endpoint: &str) -> zenoh::Session {
@@ -179,7 +117,7 @@ fn start_up_wildcards_rivals_and_retention() {
     let data = tmp.path().join("data");
     let config = cell_file(tmp.path(), "hard");
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
-    let first = Daemon::start(&config, &data, &endpoint, None);
+    let first = start(&config, &data, &endpoint, None);
     let session = client(&endpoint);
     let (tx, states) = mpsc::channel();
     let _sub = session
@@ -242,8 +180,7 @@ fn start_up_wildcards_rivals_and_retention() {
 
     // A second daemon on the same data directory refuses to start; the first one's scan goes on.
     let other = format!("tcp/127.0.0.1:{}", free_port());
-    let (status, log) =
-        Daemon::start(&config, &data, &other, None).exit_within(Duration::from_secs(30));
+    let (status, log) = start(&config, &data, &other, None).exit_within(Duration::from_secs(30));
     assert!(!status.success());
     assert!(
         log.iter().any(|l| l.contains("in use by another risd")),
@@ -251,8 +188,8 @@ fn start_up_wildcards_rivals_and_retention() {
     );
     // A second daemon of the same cell on the network refuses too.
     let data2 = tmp.path().join("data2");
-    let (status, log) = Daemon::start(&config, &data2, &other, Some(&endpoint))
-        .exit_within(Duration::from_secs(30));
+    let (status, log) =
+        start(&config, &data2, &other, Some(&endpoint)).exit_within(Duration::from_secs(30));
     assert!(!status.success());
     assert!(
         log.iter().any(|l| l.contains("already serves cell")),

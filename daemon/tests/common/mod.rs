@@ -1,4 +1,4 @@
-//! Helpers shared by the tests that need a display.
+//! Helpers shared by the daemon tests: an Xvfb display, a free loopback port, a running risd.
 #![allow(dead_code)] // each test binary uses part of it
 
 use std::process::{Child, Command, Stdio};
@@ -51,5 +51,104 @@ impl Drop for Xvfb {
     fn drop(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
+    }
+}
+
+/// A free TCP port on 127.0.0.1.
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .expect("a free port on 127.0.0.1")
+}
+
+/// A risd process whose stderr is collected on a thread; killed on drop.
+pub struct Risd {
+    child: Child,
+    log: Option<std::thread::JoinHandle<Vec<String>>>,
+    ready: std::sync::mpsc::Receiver<()>,
+}
+
+impl Risd {
+    /// Start `risd ARGS` (logging at info, no colour).
+    pub fn start(args: &[&std::ffi::OsStr]) -> Risd {
+        use std::io::BufRead;
+        let mut child = Command::new(env!("CARGO_BIN_EXE_risd"))
+            .args(args)
+            .env("RIS_LOG", "info")
+            .env("NO_COLOR", "1")
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("risd");
+        let stderr = child.stderr.take().expect("stderr");
+        let (tx, ready) = std::sync::mpsc::channel();
+        let log = std::thread::spawn(move || {
+            let mut lines = Vec::new();
+            for line in std::io::BufReader::new(stderr)
+                .lines()
+                .map_while(Result::ok)
+            {
+                if line.contains("risd ready") {
+                    let _ = tx.send(());
+                }
+                lines.push(line);
+            }
+            lines
+        });
+        Risd {
+            child,
+            log: Some(log),
+            ready,
+        }
+    }
+
+    /// Wait for "risd ready" in the log (panics with the log if it does not come).
+    pub fn wait_ready(&mut self, limit: Duration) {
+        if self.ready.recv_timeout(limit).is_err() {
+            let _ = self.child.kill();
+            let log = self.log.take().and_then(|h| h.join().ok());
+            panic!("risd never became ready: {log:#?}");
+        }
+    }
+
+    /// Wait for the process to exit by itself: its status and log.
+    pub fn exit_within(mut self, limit: Duration) -> (std::process::ExitStatus, Vec<String>) {
+        let t = Instant::now();
+        loop {
+            if let Some(s) = self.child.try_wait().expect("wait") {
+                let log = self
+                    .log
+                    .take()
+                    .and_then(|h| h.join().ok())
+                    .unwrap_or_default();
+                return (s, log);
+            }
+            if t.elapsed() > limit {
+                let _ = self.child.kill();
+                let log = self
+                    .log
+                    .take()
+                    .and_then(|h| h.join().ok())
+                    .unwrap_or_default();
+                panic!("risd did not exit within {limit:?}: {log:#?}");
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    /// SIGTERM, then wait up to 20 s for the exit.
+    pub fn terminate(self) -> (std::process::ExitStatus, Vec<String>) {
+        let ok = Command::new("kill")
+            .args(["-TERM", &self.child.id().to_string()])
+            .status()
+            .is_ok_and(|s| s.success());
+        assert!(ok, "kill -TERM");
+        self.exit_within(Duration::from_secs(20))
+    }
+}
+
+impl Drop for Risd {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
     }
 }

@@ -9,9 +9,9 @@ mod common;
 use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc;
+use std::time::{Duration, Instant};
 
 use common::{free_port, Risd};
-use std::time::{Duration, Instant};
 
 use zenoh::Wait;
 
@@ -275,4 +275,108 @@ fn start_up_wildcards_rivals_and_retention() {
     let _ = session.close().wait();
     let (status, log) = first.terminate();
     assert!(status.success(), "{log:#?}");
+}
+
+/// A one-sensor cell on the tiny scene (prepared in well under a second), keeping every scan.
+fn tiny_cell(dir: &Path) -> PathBuf {
+    let scene = config_dir().join("scenes/tiny.toml");
+    let path = dir.join("tiny.toml");
+    std::fs::write(
+        &path,
+        format!(
+            "[cell]\nname = \"tiny\"\n[storage]\nkeep_scans = 0\nmax_age_days = 0\n[[sensor]]\nname = \"s1\"\nbackend = \"mock\"\nscene = \"{}\"\nto_common = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]\n",
+            scene.display()
+        ),
+    )
+    .expect("cell file");
+    path
+}
+
+#[test]
+fn an_unwritable_store_fails_every_scan_with_the_reason() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let config = tiny_cell(tmp.path());
+    // A store whose `scans` is a file: no scan can be written there (the tests run as root,
+    // so permissions would not stop a write). Each scan must end `failed`, naming the path.
+    let broken = tmp.path().join("broken");
+    std::fs::create_dir_all(&broken).expect("mkdir");
+    std::fs::write(broken.join("scans"), "not a directory").expect("file");
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let mut risd = start(&config, &broken, &endpoint, None);
+    risd.wait_ready(Duration::from_secs(60));
+    let session = client(&endpoint);
+    let (tx, states) = mpsc::channel();
+    let _sub = session
+        .declare_subscriber("ris/tiny/scans/*/state")
+        .callback(move |s| {
+            let id = s
+                .key_expr()
+                .as_str()
+                .split('/')
+                .nth(3)
+                .unwrap_or_default()
+                .to_string();
+            if let Ok(v) = serde_json::from_slice(&s.payload().to_bytes()) {
+                let _ = tx.send((id, v));
+            }
+        })
+        .wait()
+        .expect("subscriber");
+    std::thread::sleep(Duration::from_millis(200));
+    for _ in 0..2 {
+        let replies = ask(&session, "ris/tiny/scan", Some("{}"));
+        let v: serde_json::Value =
+            serde_json::from_str(replies[0].as_ref().expect("accepted")).expect("json");
+        let id = v["scan_id"].as_str().expect("id").to_string();
+        let end = wait_end(&states, &id);
+        assert_eq!(end["state"], "failed", "{end}");
+        assert!(
+            end["reason"].as_str().is_some_and(|r| r.contains("scans")),
+            "{end}"
+        );
+    }
+    // The daemon goes on serving: back to `ready` once the worker has finished the job.
+    let t = Instant::now();
+    let h = loop {
+        let health = ask(&session, "ris/tiny/health", None);
+        let h: serde_json::Value =
+            serde_json::from_str(health[0].as_ref().expect("health")).expect("json");
+        if h["state"] == "ready" || t.elapsed() > Duration::from_secs(10) {
+            break h;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert_eq!(h["state"], "ready", "{h}");
+    assert!(
+        h["last_error"]
+            .as_str()
+            .is_some_and(|e| e.contains("scans")),
+        "{h}"
+    );
+    let (status, log) = risd.terminate();
+    assert!(status.success(), "{log:#?}");
+}
+
+#[test]
+fn sigterm_during_start_up_does_not_wait_for_preparation() {
+    // The built-in mock cell prepares four 2 MP-class pairs (seconds); SIGTERM as soon as its
+    // Zenoh session answers must end risd without finishing them.
+    let tmp = tempfile::tempdir().expect("tmp");
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let config = config_dir().join("mock-cell.toml");
+    let risd = start(&config, tmp.path(), &endpoint, None);
+    let session = client(&endpoint);
+    let replies = ask(&session, "ris/mock/scan", Some("{}"));
+    assert!(
+        replies[0].as_ref().is_err_and(|e| e.contains("starting")),
+        "{replies:?}"
+    );
+    let _ = session.close().wait();
+    let (status, log) = risd.terminate();
+    assert!(status.success(), "{log:#?}");
+    let prepared = log.iter().filter(|l| l.contains("mock pair ready")).count();
+    assert!(
+        prepared < 4 && !log.iter().any(|l| l.contains("risd ready")),
+        "preparation ran to the end before the exit: {log:#?}"
+    );
 }

@@ -88,6 +88,40 @@ fn check_config_reports_missing_files() {
         err.contains("sensor s1") && err.contains("sensors/s1.toml"),
         "{err}"
     );
+    // A part whose CAD has no usable triangle (three equal corners) is refused by the check,
+    // not found by the first scan.
+    let dir = tempfile::tempdir().expect("tmp");
+    let mut stl = vec![0u8; 80];
+    stl.extend_from_slice(&1u32.to_le_bytes());
+    stl.extend_from_slice(&[0u8; 12]);
+    for _ in 0..3 {
+        for c in [1.0f32, 2.0, 3.0] {
+            stl.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    stl.extend_from_slice(&[0, 0]);
+    std::fs::write(dir.path().join("bad.stl"), stl).expect("stl");
+    let cell = dir.path().join("cell.toml");
+    std::fs::write(
+        &cell,
+        format!(
+            "[cell]\nname = \"c\"\n[[sensor]]\nname = \"s1\"\nbackend = \"mock\"\nscene = \"{}\"\nto_common = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]\n[[part]]\nid = \"p\"\ncad = \"bad.stl\"\ntolerance = 0.5\n",
+            config_dir().join("scenes/tiny.toml").display()
+        ),
+    )
+    .expect("cell");
+    let o = Command::new(env!("CARGO_BIN_EXE_risd"))
+        .arg("--check-config")
+        .arg(&cell)
+        .env("RIS_LOG", "warn")
+        .output()
+        .expect("risd");
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("part p") && err.contains("bad.stl") && err.contains("no usable triangle"),
+        "{err}"
+    );
 }
 
 #[test]

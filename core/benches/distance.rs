@@ -1,4 +1,5 @@
-//! Signed distances of 200 k points to a 483 k-triangle mesh (BVH + pseudo-normal sign).
+//! Signed distances of 200 k points to a 483 k-triangle mesh (BVH + pseudo-normal sign), and
+//! the coverage of that mesh by a 50 k-point subsample.
 #![allow(missing_docs)] // criterion_group! generates an undocumented public function
 
 use criterion::{criterion_group, criterion_main, Criterion};
@@ -36,6 +37,15 @@ fn bench(c: &mut Criterion) {
     g.sample_size(10);
     g.bench_function("200k_points_483k_triangles", |b| {
         b.iter(|| sd.query_all(&points))
+    });
+    g.finish();
+    // Coverage of the CAD by the inspection's fit subsample (50 k points): what every
+    // inspection adds for its `not_measured` check.
+    let fit: Vec<[f64; 3]> = points.iter().step_by(4).copied().collect();
+    let mut g = c.benchmark_group("coverage");
+    g.sample_size(10);
+    g.bench_function("50k_points_483k_triangles", |b| {
+        b.iter(|| ris_core::inspect::coverage(sd.mesh(), &fit, 0.5))
     });
     g.finish();
 }

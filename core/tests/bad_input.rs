@@ -296,4 +296,37 @@ proptest! {
             prop_assert_eq!(shape.iter().product::<usize>(), data.len());
         }
     }
+
+    #[test]
+    fn image_reader_never_panics(body in proptest::collection::vec(any::<u8>(), 0..300), png in any::<bool>()) {
+        let dir = tempfile::tempdir().expect("tmp");
+        let mut bytes = if png { b"\x89PNG\r\n\x1a\n".to_vec() } else { Vec::new() };
+        bytes.extend_from_slice(&body);
+        let p = write(dir.path(), "f.png", &bytes);
+        let _ = ris_core::image::GrayImage::load(&p);
+    }
+
+    #[test]
+    fn capture_manifest_never_panics(pw in any::<u32>(), ph in any::<u32>(), cw in any::<u32>(), ch in any::<u32>(), step in any::<u32>()) {
+        let dir = tempfile::tempdir().expect("tmp");
+        let manifest = format!("[projector]\nwidth = {pw}\nheight = {ph}\ncolumn_step = {step}\nrow_step = 1\n[camera]\nwidth = {cw}\nheight = {ch}\n");
+        write(dir.path(), "capture.toml", manifest.as_bytes());
+        let img = ris_core::image::GrayImage::from_u8(4, 3, vec![200; 12]);
+        for name in ["white", "black", "gray_col_00"] {
+            img.save_png(&dir.path().join(format!("{name}.png"))).expect("png");
+        }
+        let _ = ris_core::capture::CaptureSet::load(dir.path());
+    }
+
+    #[test]
+    fn sensor_file_reader_never_panics(flips in proptest::collection::vec((0usize..400, 32u8..127), 1..6)) {
+        let dir = tempfile::tempdir().expect("tmp");
+        let mut text = "[camera]\nwidth = 800\nheight = 600\nk = [[1000.0, 0.0, 400.0], [0.0, 1000.0, 300.0], [0.0, 0.0, 1.0]]\ndist = [0.0, 0.0, 0.0, 0.0, 0.0]\nr = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]\nt = [0.0, 0.0, 1000.0]\n[projector]\nwidth = 1024\nheight = 768\ncenter = [200.0, 0.0, 1000.0]\n".as_bytes().to_vec();
+        for (at, b) in flips {
+            let i = at % text.len();
+            text[i] = b;
+        }
+        let p = write(dir.path(), "s.toml", &text);
+        let _ = Sensor::load(&p);
+    }
 }

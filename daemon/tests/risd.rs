@@ -358,3 +358,22 @@ fn a_fault_in_one_pair_fails_that_scan_and_the_next_succeeds() {
     .expect("json");
     assert_eq!(stored["tag"], "after the panic");
 }
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig { failure_persistence: None, ..Default::default() })]
+
+    /// The mock cell's configuration with a few printable bytes changed: a config or an error
+    /// naming the file, never a panic.
+    #[test]
+    fn mutated_cell_files_parse_or_fail_cleanly(flips in proptest::collection::vec((0usize..4000, 32u8..127), 1..6)) {
+        let mut text = ris_daemon::config::MOCK_CELL.as_bytes().to_vec();
+        for (at, b) in flips {
+            let i = at % text.len();
+            text[i] = b;
+        }
+        let text = String::from_utf8_lossy(&text).into_owned();
+        if let Err(e) = CellConfig::parse(&text, &config_dir(), "mutated.toml") {
+            proptest::prop_assert!(format!("{e:#}").contains("mutated.toml"), "{:#}", e);
+        }
+    }
+}

@@ -117,7 +117,8 @@ impl Default for WorkersSection {
 pub struct SensorSection {
     /// Sensor name (`s1`): the key of its cloud.
     pub name: String,
-    /// `mock` (simulated pair), `aravis` (GigE Vision) or `v4l2` (USB).
+    /// `mock` (simulated pair), `aravis` (GigE Vision), `v4l2` (USB) or `replay` (a recorded
+    /// capture set).
     pub backend: String,
     /// Camera device: id or IP (aravis), path (v4l2).
     #[serde(default)]
@@ -142,6 +143,22 @@ pub struct SensorSection {
     /// Camera exposure, µs.
     #[serde(default = "exposure")]
     pub exposure_us: f64,
+    /// Camera gain, dB (hardware pairs; default: the camera's own setting).
+    #[serde(default)]
+    pub gain_db: Option<f64>,
+    /// `software` (a trigger command after each slide is on screen; the default) or
+    /// `hardware` (the projector's sync output wired to a camera line).
+    #[serde(default)]
+    pub trigger: Option<String>,
+    /// Camera line of a hardware trigger (default `Line0`).
+    #[serde(default)]
+    pub trigger_line: Option<String>,
+    /// Wait between a slide's presentation and its exposure, ms (projector response time).
+    #[serde(default)]
+    pub settle_ms: f64,
+    /// The capture set a `replay` pair serves (a kept scan's `captures/<sensor>`).
+    #[serde(default)]
+    pub recording: Option<PathBuf>,
 }
 
 /// `[[part]]`: a part the cell inspects.
@@ -223,6 +240,11 @@ pub enum Backend {
     Aravis,
     /// V4L2 camera.
     V4l2,
+    /// A recorded capture set served as the camera's frames.
+    Replay {
+        /// The capture set directory.
+        recording: PathBuf,
+    },
 }
 
 /// A validated sensor pair.
@@ -238,12 +260,21 @@ pub struct SensorConfig {
     pub projector_monitor: Option<u32>,
     /// Sensor file, resolved.
     pub sensor_file: Option<PathBuf>,
-    /// Sensor → cell transform given in the cell file (mock pairs).
+    /// Simulator scene that gives the sensor model of a mock pair (and of a replay pair
+    /// recorded from one).
+    pub scene: Option<PathBuf>,
+    /// Sensor → cell transform given in the cell file (pairs modelled by a scene).
     pub to_common: Option<nalgebra::Matrix4<f64>>,
     /// Exposure group.
     pub exposure_group: u32,
     /// Exposure, µs.
     pub exposure_us: f64,
+    /// Gain, dB.
+    pub gain_db: Option<f64>,
+    /// How exposures start.
+    pub trigger: ris_drivers::TriggerMode,
+    /// Wait between presentation and exposure.
+    pub settle: std::time::Duration,
 }
 
 /// A validated part.
@@ -413,25 +444,38 @@ impl CellConfig {
                     ),
                 ));
             }
+            let scene = s.scene.as_deref().map(resolve);
             let backend = match s.backend.as_str() {
                 "mock" => Backend::Mock {
-                    scene: resolve(s.scene.as_deref().ok_or_else(|| {
+                    scene: scene.clone().ok_or_else(|| {
                         field(
                             &f("scene"),
                             "a mock pair needs the scene it simulates".into(),
                         )
-                    })?),
+                    })?,
                 },
                 "aravis" => Backend::Aravis,
                 "v4l2" => Backend::V4l2,
+                "replay" => Backend::Replay {
+                    recording: resolve(s.recording.as_deref().ok_or_else(|| {
+                        field(
+                            &f("recording"),
+                            "a replay pair needs the capture set it serves".into(),
+                        )
+                    })?),
+                },
                 other => {
                     return Err(field(
                         &f("backend"),
-                        format!("{other:?} is not one of \"mock\", \"aravis\", \"v4l2\""),
+                        format!(
+                            "{:?} is not one of \"mock\", \"aravis\", \"v4l2\", \"replay\"",
+                            other.chars().take(64).collect::<String>()
+                        ),
                     ))
                 }
             };
-            if !matches!(backend, Backend::Mock { .. }) {
+            let hardware = matches!(backend, Backend::Aravis | Backend::V4l2);
+            if hardware {
                 if s.sensor_file.is_none() {
                     return Err(field(
                         &f("sensor_file"),
@@ -444,13 +488,91 @@ impl CellConfig {
                         "a hardware pair needs its camera device".into(),
                     ));
                 }
-                if s.to_common.is_some() {
+                if s.projector_monitor.is_none() {
                     return Err(field(
-                        &f("to_common"),
-                        "only mock pairs take it here; others read [to_common] from the sensor file".into(),
+                        &f("projector_monitor"),
+                        "a hardware pair needs the monitor of its projector".into(),
+                    ));
+                }
+            } else if s.device.is_some() || s.projector_monitor.is_some() {
+                return Err(field(
+                    &f(if s.device.is_some() {
+                        "device"
+                    } else {
+                        "projector_monitor"
+                    }),
+                    format!("a {} pair has no devices", s.backend),
+                ));
+            }
+            if matches!(backend, Backend::Replay { .. })
+                && s.scene.is_some() == s.sensor_file.is_some()
+            {
+                return Err(field(
+                    &f("scene"),
+                    "a replay pair takes its sensor model from `scene` (recorded from a mock pair) or `sensor_file`, one of them".into(),
+                ));
+            }
+            if scene.is_some() && hardware {
+                return Err(field(
+                    &f("scene"),
+                    "a hardware pair's model is its sensor file, not a scene".into(),
+                ));
+            }
+            if s.to_common.is_some() && scene.is_none() {
+                return Err(field(
+                    &f("to_common"),
+                    "only pairs modelled by a scene take it here; others read [to_common] from the sensor file".into(),
+                ));
+            }
+            if scene.is_some() && s.to_common.is_none() {
+                return Err(field(
+                    &f("to_common"),
+                    "a pair modelled by a scene needs its sensor → cell transform".into(),
+                ));
+            }
+            if let Some(g) = s.gain_db {
+                if !(g.is_finite() && (0.0..=48.0).contains(&g)) {
+                    return Err(field(
+                        &f("gain_db"),
+                        format!("{g} must be within 0 … 48 dB"),
                     ));
                 }
             }
+            if !(s.settle_ms.is_finite() && (0.0..=10_000.0).contains(&s.settle_ms)) {
+                return Err(field(
+                    &f("settle_ms"),
+                    format!("{} must be within 0 … 10000 ms", s.settle_ms),
+                ));
+            }
+            let trigger = match (s.trigger.as_deref(), &s.trigger_line) {
+                (None | Some("software"), None) => ris_drivers::TriggerMode::Software,
+                (None | Some("software"), Some(_)) => {
+                    return Err(field(
+                        &f("trigger_line"),
+                        "only a hardware trigger has a line".into(),
+                    ))
+                }
+                (Some("hardware"), line) => {
+                    if !hardware {
+                        return Err(field(
+                            &f("trigger"),
+                            format!("a {} pair has no trigger line", s.backend),
+                        ));
+                    }
+                    ris_drivers::TriggerMode::Hardware {
+                        source: line.clone().unwrap_or_else(|| "Line0".into()),
+                    }
+                }
+                (Some(other), _) => {
+                    return Err(field(
+                        &f("trigger"),
+                        format!(
+                            "{:?} is not \"software\" or \"hardware\"",
+                            other.chars().take(64).collect::<String>()
+                        ),
+                    ))
+                }
+            };
             let to_common = match s.to_common {
                 None => None,
                 Some(m) => {
@@ -476,9 +598,13 @@ impl CellConfig {
                 device: s.device.clone(),
                 projector_monitor: s.projector_monitor,
                 sensor_file: s.sensor_file.as_deref().map(resolve),
+                scene,
                 to_common,
                 exposure_group: s.exposure_group,
                 exposure_us: s.exposure_us,
+                gain_db: s.gain_db,
+                trigger,
+                settle: std::time::Duration::from_secs_f64(s.settle_ms / 1000.0),
             });
         }
         let mut parts: Vec<PartConfig> = Vec::new();
@@ -555,9 +681,13 @@ impl CellConfig {
     /// Check that every referenced file exists and parses (scenes, sensor files, CAD, datums).
     pub fn check_files(&self) -> Result<()> {
         for s in &self.sensors {
-            if let Backend::Mock { scene } = &s.backend {
+            if let Some(scene) = &s.scene {
                 ris_core::sim::Scene::load(scene)
                     .with_context(|| format!("sensor {}: scene", s.name))?;
+            }
+            if let Backend::Replay { recording } = &s.backend {
+                ris_core::capture::CaptureSet::load(recording)
+                    .with_context(|| format!("sensor {}: recording", s.name))?;
             }
             if let Some(f) = &s.sensor_file {
                 let sensor = ris_core::sensor::Sensor::load(f)

@@ -3,10 +3,12 @@
 //! Binaries under `src/bin/` only parse arguments and set up logging; every command's logic is a
 //! function in [`commands`] so tests can call it directly.
 
+pub mod cell;
 pub mod commands;
 pub mod config;
 pub mod logging;
 pub mod notify;
+pub mod pair;
 pub mod progress;
 pub mod protocol;
 pub mod scan;

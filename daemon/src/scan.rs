@@ -17,33 +17,17 @@ use ris_core::inspect::{
     inspect, load_datums, write_deviation_ply, write_deviation_png, Datum, InspectParams,
 };
 use ris_core::mesh::{SignedDistance, TriangleMesh};
-use ris_core::pattern::CodeLayout;
 use ris_core::sensor::Reconstructor;
-use ris_core::sim::{Scene, Simulator};
-use ris_drivers::mock::{simulated_pair, FaultInjector, MockCamera, MockProjector};
-use ris_drivers::sequence::{acquire, SequenceParams};
-use ris_drivers::{Camera, Slide};
+use ris_drivers::adaptive::{adaptive_scan, AdaptiveParams};
+use ris_drivers::sequence::acquire;
+use ris_drivers::Slide;
 use serde::Serialize;
 
-use crate::config::{Backend, CellConfig, PartConfig};
+use crate::config::PartConfig;
+pub use crate::pair::Pair;
 
 /// Radius (mm) within which points of different sensors are duplicates in the merge.
 const MERGE_RADIUS: f64 = 0.5;
-
-/// A sensor pair ready to scan.
-pub struct Pair {
-    /// Sensor name.
-    pub name: String,
-    /// Exposure group.
-    pub group: u32,
-    camera: MockCamera,
-    projector: MockProjector,
-    /// Fault injection (mock pairs), for tests.
-    pub faults: FaultInjector,
-    layout: CodeLayout,
-    reconstructor: Arc<Reconstructor>,
-    to_common: nalgebra::Matrix4<f64>,
-}
 
 /// Progress of a scan, as the daemon publishes it.
 #[derive(Clone, Debug, Serialize)]
@@ -55,9 +39,12 @@ pub enum ScanState {
     Acquiring {
         /// Sensor.
         sensor: String,
-        /// Frames recorded.
+        /// Step of an adaptive scan (`flats`, `advanced projection`, `final projection`, ...).
+        #[serde(skip_serializing_if = "Option::is_none")]
+        phase: Option<String>,
+        /// Frames recorded (of this step, in an adaptive scan).
         frame: usize,
-        /// Frames of the sequence.
+        /// Frames of the sequence (of this step).
         frames: usize,
     },
     /// A sensor's capture is being decoded and reconstructed.
@@ -94,6 +81,47 @@ pub struct SensorTiming {
     pub stages: StageSeconds,
     /// Points reconstructed.
     pub points: usize,
+    /// Slides projected (retries and every step of an adaptive scan included).
+    pub frames: u64,
+    /// The steps of an adaptive scan.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub phases: Vec<PhaseTiming>,
+}
+
+/// One step of an adaptive scan.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct PhaseTiming {
+    /// Step.
+    pub phase: String,
+    /// Slides projected.
+    pub frames: u64,
+    /// Seconds (projection and the computation after it).
+    pub seconds: f64,
+    /// Figures of the step.
+    pub detail: String,
+}
+
+/// How a scan acquires.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ScanMode {
+    /// The Gray-code sequence with inverses, unmasked.
+    #[default]
+    Gray,
+    /// The adaptive projection-mask loop (dark, black and shiny surfaces), then the Gray
+    /// sequence under the final mask.
+    Adaptive,
+}
+
+impl ScanMode {
+    /// Parse a request's or command line's mode.
+    pub fn parse(text: &str) -> Option<ScanMode> {
+        match text {
+            "gray" => Some(ScanMode::Gray),
+            "adaptive" => Some(ScanMode::Adaptive),
+            _ => None,
+        }
+    }
 }
 
 /// Seconds of one sensor's compute stages.
@@ -117,6 +145,8 @@ pub struct ScanReport {
     pub tag: Option<String>,
     /// Cell.
     pub cell: String,
+    /// How the pairs acquired.
+    pub mode: ScanMode,
     /// Per sensor.
     pub sensors: Vec<SensorTiming>,
     /// Merge start and end, s since the scan started.
@@ -190,52 +220,8 @@ pub struct ScanOptions<'a> {
     pub part: Option<&'a Part>,
     /// Free text of the request, stored in `scan.json`.
     pub tag: Option<&'a str>,
-}
-
-/// Prepare every pair of `config`: for mock pairs, ray-cast the scene and record and fit the
-/// reference plane (a white board at the sensor's z = 0).
-pub fn prepare(config: &CellConfig, seed: u64) -> Result<Vec<Pair>> {
-    let mut pairs = Vec::new();
-    for s in &config.sensors {
-        let Backend::Mock { scene } = &s.backend else {
-            return Err(anyhow!(
-                "sensor {}: the {:?} backend is not built into this risd; only mock pairs run",
-                s.name,
-                s.backend
-            ));
-        };
-        let t = Instant::now();
-        let sc = Scene::load(scene).with_context(|| format!("sensor {}: scene", s.name))?;
-        let board = Simulator::new(sc.sprayed().reference());
-        let layout = board.layout();
-        let reference = decode(
-            &board.capture(&layout, 7, &|_, _| {}),
-            &DecodeParams::default(),
-        )
-        .with_context(|| format!("sensor {}: decoding the reference", s.name))?;
-        let reconstructor = Reconstructor::parallax(&sc.camera, sc.projector.center(), &reference)
-            .with_context(|| format!("sensor {}: parallax model", s.name))?;
-        let to_common = s
-            .to_common
-            .ok_or_else(|| anyhow!("sensor {}: no to_common", s.name))?;
-        let sim = Arc::new(Simulator::new(sc));
-        let (mut camera, projector, faults) = simulated_pair(sim, &s.name, seed);
-        camera
-            .set_exposure_us(s.exposure_us)
-            .with_context(|| format!("sensor {}: exposure", s.name))?;
-        tracing::info!(sensor = %s.name, seconds = t.elapsed().as_secs_f64(), "mock pair ready");
-        pairs.push(Pair {
-            name: s.name.clone(),
-            group: s.exposure_group,
-            camera,
-            projector,
-            faults,
-            layout,
-            reconstructor: Arc::new(reconstructor),
-            to_common,
-        });
-    }
-    Ok(pairs)
+    /// How the pairs acquire.
+    pub mode: ScanMode,
 }
 
 /// Scan with the pairs `options` selects and write the result into
@@ -326,7 +312,6 @@ fn scan_into(
         .collect();
     groups.sort_unstable();
     groups.dedup();
-    let params = &SequenceParams::default();
     // Captures go to the compute worker through a bounded channel; it decodes, reconstructs,
     // writes and merges each sensor while the next group acquires.
     let (tx, rx) = mpsc::sync_channel::<(usize, CaptureSet)>(pairs.len().max(1));
@@ -401,29 +386,9 @@ fn scan_into(
                         .filter(|(i, p)| p.group == *g && selected[*i])
                         .map(|(i, p)| {
                             inner.spawn(move || {
-                                let slides: Vec<Slide> = p
-                                    .layout
-                                    .sequence(true)
-                                    .into_iter()
-                                    .map(Slide::plain)
-                                    .collect();
                                 let a0 = secs();
-                                let name = p.name.clone();
-                                let acq = acquire(
-                                    &mut p.camera,
-                                    &mut p.projector,
-                                    &p.layout,
-                                    &slides,
-                                    params,
-                                    &mut |pr| {
-                                        state(&ScanState::Acquiring {
-                                            sensor: name.clone(),
-                                            frame: pr.done,
-                                            frames: pr.total,
-                                        })
-                                    },
-                                )
-                                .with_context(|| format!("sensor {}: acquisition", p.name));
+                                let acq = acquire_pair(p, options.mode, state)
+                                    .with_context(|| format!("sensor {}: acquisition", p.name));
                                 (i, acq, a0, secs())
                             })
                         })
@@ -435,8 +400,16 @@ fn scan_into(
                 for r in results {
                     let (i, acq, a0, a1) =
                         r.map_err(|_| anyhow!("an acquisition thread panicked"))?;
-                    let acq = acq?;
+                    let acq = match acq {
+                        Ok(a) => a,
+                        Err(e) => {
+                            pairs[i].note_failure(&e);
+                            return Err(e);
+                        }
+                    };
                     timings[i].acquire = (a0, a1);
+                    timings[i].frames = acq.frames;
+                    timings[i].phases = acq.phases;
                     last_frame = last_frame.max(a1);
                     if options.keep_captures {
                         acq.capture
@@ -486,6 +459,7 @@ fn scan_into(
         scan_id: scan_id.to_string(),
         tag: options.tag.map(str::to_string),
         cell: cell.to_string(),
+        mode: options.mode,
         sensors: timings
             .into_iter()
             .zip(selected)
@@ -504,6 +478,96 @@ fn scan_into(
     )
     .context("writing scan.json")?;
     Ok(report)
+}
+
+/// A pair's recorded capture set and how it was made.
+struct Recorded {
+    capture: CaptureSet,
+    frames: u64,
+    phases: Vec<PhaseTiming>,
+}
+
+/// Record one pair: the Gray sequence, or the adaptive loop (its exposure restored after).
+fn acquire_pair(
+    p: &mut Pair,
+    mode: ScanMode,
+    state: &(dyn Fn(&ScanState) + Sync),
+) -> Result<Recorded> {
+    let name = p.name.clone();
+    match mode {
+        ScanMode::Gray => {
+            let slides: Vec<Slide> = p
+                .layout
+                .sequence(true)
+                .into_iter()
+                .map(Slide::plain)
+                .collect();
+            let acq = acquire(
+                &mut *p.camera,
+                &mut *p.projector,
+                &p.layout,
+                &slides,
+                &p.sequence,
+                &mut |pr| {
+                    state(&ScanState::Acquiring {
+                        sensor: name.clone(),
+                        phase: None,
+                        frame: pr.done,
+                        frames: pr.total,
+                    })
+                },
+            )?;
+            Ok(Recorded {
+                capture: acq.capture,
+                frames: acq.report.shows,
+                phases: Vec::new(),
+            })
+        }
+        ScanMode::Adaptive => {
+            let reference = p.reference.clone().ok_or_else(|| {
+                anyhow!(
+                    "an adaptive scan needs the pair's reference recording; its sensor file has no [reference]"
+                )
+            })?;
+            let params = AdaptiveParams {
+                sequence: p.sequence.clone(),
+                ..AdaptiveParams::default()
+            };
+            let scan = adaptive_scan(
+                &mut *p.camera,
+                &mut *p.projector,
+                &p.layout,
+                &reference,
+                &params,
+                &mut |step, pr| {
+                    state(&ScanState::Acquiring {
+                        sensor: name.clone(),
+                        phase: Some(step.to_string()),
+                        frame: pr.done,
+                        frames: pr.total,
+                    })
+                },
+            );
+            // The next scan starts from the configured exposure, whatever this one chose.
+            let restored = p.camera.set_exposure_us(p.exposure_us);
+            let scan = scan?;
+            restored.context("restoring the exposure")?;
+            Ok(Recorded {
+                capture: scan.capture,
+                frames: scan.frames,
+                phases: scan
+                    .steps
+                    .into_iter()
+                    .map(|s| PhaseTiming {
+                        phase: s.step.to_string(),
+                        frames: s.frames,
+                        seconds: s.seconds,
+                        detail: s.detail,
+                    })
+                    .collect(),
+            })
+        }
+    }
 }
 
 /// Register the merged cloud (cell frame, which the cell calibration puts on the part's

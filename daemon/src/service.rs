@@ -15,10 +15,11 @@ use zenoh::qos::CongestionControl;
 use zenoh::query::Query;
 use zenoh::{Session, Wait};
 
+use crate::cell::{Cell, PairStatus, ScanJob};
 use crate::config::CellConfig;
 use crate::notify;
 use crate::protocol::{echo, health_key, scan_key, state_key, ScanRequest};
-use crate::scan::{self, Pair, Part, ScanOptions, ScanState};
+use crate::scan::{self, ScanMode, ScanState};
 use crate::store::{self, DataDirLock};
 
 /// What `ris/<cell>/health` answers.
@@ -34,14 +35,13 @@ pub struct Status {
     pub last_scan: Option<String>,
     /// Last failure.
     pub last_error: Option<String>,
+    /// Each pair's drivers (empty while preparing).
+    pub pairs: Vec<PairStatus>,
 }
 
 struct Job {
     scan_id: String,
-    sensors: Option<Vec<String>>,
-    /// Index of the part to inspect.
-    part: Option<usize>,
-    tag: Option<String>,
+    scan: ScanJob,
 }
 
 /// The scan worker's sign of life: milliseconds since `start` at its last beat. The systemd
@@ -75,10 +75,10 @@ impl Heartbeat {
 /// cell's parts); the error is the reply's reason.
 pub fn validate(req: &ScanRequest, config: &CellConfig) -> Result<Option<usize>, String> {
     match req.mode.as_deref() {
-        None | Some("gray") => {}
-        Some(m @ ("adaptive" | "single-shot")) => {
+        None | Some("gray" | "adaptive") => {}
+        Some(m @ "single-shot") => {
             return Err(format!(
-                "mode {m:?} is not available in this risd build; use \"gray\""
+                "mode {m:?} is not available in this risd build; use \"gray\" or \"adaptive\""
             ))
         }
         Some(m) => {
@@ -274,6 +274,7 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
         queue: 0,
         last_scan: None,
         last_error: None,
+        pairs: Vec::new(),
     }));
     let health = session
         .declare_queryable(health_key(&cell))
@@ -313,14 +314,8 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
     // Preparation (reference recordings, CAD indexing) off the runtime; SIGTERM does not wait
     // for it.
     let prep_config = config.clone();
-    let mut preparation = tokio::task::spawn_blocking(move || -> Result<_> {
-        let parts = prep_config
-            .parts
-            .iter()
-            .map(Part::prepare)
-            .collect::<Result<Vec<_>>>()?;
-        Ok((scan::prepare(&prep_config, 1)?, parts))
-    });
+    let mut preparation =
+        tokio::task::spawn_blocking(move || -> Result<_> { Cell::prepare(&prep_config, 1) });
     let mut prepared = false;
     let mut token = None;
     let (tx, rx) = mpsc::sync_channel::<Job>(config.workers.queue);
@@ -335,8 +330,8 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
             _ = shutdown.cancelled() => break Ok(()),
             done = &mut preparation, if !prepared => {
                 prepared = true;
-                let (pairs, parts) = match done {
-                    Ok(Ok(p)) => p,
+                let cell_ready = match done {
+                    Ok(Ok(c)) => c,
                     Ok(Err(e)) => break Err(e.context("preparing the cell")),
                     Err(e) => break Err(anyhow!("preparing the cell: {e}")),
                 };
@@ -356,7 +351,6 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
                     .name("risd-scan".into())
                     .spawn(move || {
                         let ctx = WorkerContext {
-                            parts: &parts,
                             session: &w_session,
                             status: &w_status,
                             stopping: &w_stopping,
@@ -365,7 +359,7 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
                             data_dir: &w_data_dir,
                             storage: &storage,
                         };
-                        worker_loop(rx, pairs, &ctx);
+                        worker_loop(rx, cell_ready, &ctx);
                         drop(gone);
                     });
                 match spawned {
@@ -478,9 +472,16 @@ async fn handle_scan(
             }
             let job = Job {
                 scan_id: scan_id.clone(),
-                sensors: r.sensors.clone(),
-                part,
-                tag: r.tag.clone(),
+                scan: ScanJob {
+                    sensors: r.sensors.clone(),
+                    part,
+                    tag: r.tag.clone(),
+                    mode: r
+                        .mode
+                        .as_deref()
+                        .and_then(ScanMode::parse)
+                        .unwrap_or_default(),
+                },
             };
             let sent = tx.try_send(job);
             if sent.is_err() {
@@ -520,7 +521,6 @@ fn publish(session: &Session, cell: &str, scan_id: &str, state: &ScanState) {
 
 /// What the scan worker shares with the service.
 struct WorkerContext<'a> {
-    parts: &'a [Part],
     session: &'a Session,
     status: &'a Mutex<Status>,
     stopping: &'a AtomicBool,
@@ -530,12 +530,29 @@ struct WorkerContext<'a> {
     storage: &'a crate::config::StorageSection,
 }
 
-fn worker_loop(rx: mpsc::Receiver<Job>, mut pairs: Vec<Pair>, ctx: &WorkerContext) {
+fn worker_loop(rx: mpsc::Receiver<Job>, mut cell: Cell, ctx: &WorkerContext) {
+    let report_pairs = |cell: &Cell| {
+        if let Ok(mut s) = ctx.status.lock() {
+            s.pairs = cell.status();
+        }
+    };
+    report_pairs(&cell);
     loop {
         ctx.heartbeat.beat();
         let job = match rx.recv_timeout(Duration::from_secs(1)) {
             Ok(job) => job,
-            Err(mpsc::RecvTimeoutError::Timeout) => continue,
+            Err(mpsc::RecvTimeoutError::Timeout) => {
+                // Lost cameras are reopened between scans, so health shows them back.
+                if cell
+                    .status()
+                    .iter()
+                    .any(|p| p.driver != crate::pair::DriverState::Connected)
+                {
+                    cell.reconnect();
+                    report_pairs(&cell);
+                }
+                continue;
+            }
             Err(mpsc::RecvTimeoutError::Disconnected) => break,
         };
         if let Ok(mut s) = ctx.status.lock() {
@@ -545,8 +562,9 @@ fn worker_loop(rx: mpsc::Receiver<Job>, mut pairs: Vec<Pair>, ctx: &WorkerContex
         let id = job.scan_id.clone();
         // A panic anywhere in a job fails that job; the worker goes on with the next.
         let ran = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            run_job(job, &mut pairs, ctx)
+            run_job(job, &mut cell, ctx)
         }));
+        report_pairs(&cell);
         if let Err(panic) = ran {
             let reason = format!("internal error: {}", scan::panic_message(&*panic));
             tracing::error!(scan = %id, %reason, "scan panicked");
@@ -574,7 +592,7 @@ fn worker_loop(rx: mpsc::Receiver<Job>, mut pairs: Vec<Pair>, ctx: &WorkerContex
     }
 }
 
-fn run_job(job: Job, pairs: &mut [Pair], ctx: &WorkerContext) {
+fn run_job(job: Job, cell_: &mut Cell, ctx: &WorkerContext) {
     let id = job.scan_id;
     let (session, cell) = (ctx.session, ctx.cell);
     if ctx.stopping.load(Ordering::SeqCst) {
@@ -588,16 +606,8 @@ fn run_job(job: Job, pairs: &mut [Pair], ctx: &WorkerContext) {
         );
         return;
     }
-    let options = ScanOptions {
-        only: job.sensors.as_deref(),
-        keep_captures: ctx.storage.keep_captures,
-        part: job.part.and_then(|i| ctx.parts.get(i)),
-        tag: job.tag.as_deref(),
-    };
-    let result = scan::run(
-        cell,
-        pairs,
-        options,
+    let result = cell_.scan(
+        &job.scan,
         ctx.data_dir,
         &id,
         &|| ctx.stopping.load(Ordering::SeqCst),
@@ -727,7 +737,7 @@ mod tests {
 
     fn cell(parts: &[&str]) -> CellConfig {
         let mut text = String::from(
-            "[cell]\nname = \"t\"\n[[sensor]]\nname = \"s1\"\nbackend = \"mock\"\nscene = \"s.toml\"\n",
+            "[cell]\nname = \"t\"\n[[sensor]]\nname = \"s1\"\nbackend = \"mock\"\nscene = \"s.toml\"\nto_common = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]\n",
         );
         for p in parts {
             text += &format!("[[part]]\nid = \"{p}\"\ncad = \"{p}.stl\"\ntolerance = 0.5\n");

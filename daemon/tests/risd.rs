@@ -26,9 +26,13 @@ fn reference_and_mock_cell_configs_parse() {
 #[test]
 fn config_errors_name_the_field() {
     let base = config_dir();
-    let ok =
+    let bare =
         "[cell]\nname = \"c\"\n[[sensor]]\nname = \"s1\"\nbackend = \"mock\"\nscene = \"x.toml\"\n";
+    let identity =
+        "to_common = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]\n";
+    let ok = &format!("{bare}{identity}");
     assert!(CellConfig::parse(ok, &base, "t.toml").is_ok());
+    let aravis = "[cell]\nname = \"c\"\n[[sensor]]\nname = \"s1\"\nbackend = \"aravis\"\ndevice = \"127.0.0.1\"\nsensor_file = \"s.toml\"\n";
     for (text, needle) in [
         ("[cell]\nname = \"bad name\"\n", "cell.name"),
         ("[cell]\nname = \"c\"\ncolour = 1\n", "unknown field"),
@@ -54,8 +58,31 @@ fn config_errors_name_the_field() {
             "sensor[0].exposure_us",
         ),
         (
-            &format!("{ok}to_common = [[2.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]\n"),
+            &format!("{bare}to_common = [[2.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]\n"),
             "sensor[0].to_common",
+        ),
+        (bare, "sensor[0].to_common"),
+        (aravis, "sensor[0].projector_monitor"),
+        (
+            &format!("{aravis}projector_monitor = 1\nscene = \"x.toml\"\n"),
+            "sensor[0].scene",
+        ),
+        (
+            &format!("{aravis}projector_monitor = 1\ntrigger = \"sometimes\"\n"),
+            "sensor[0].trigger",
+        ),
+        (&format!("{ok}trigger = \"hardware\"\n"), "sensor[0].trigger"),
+        (&format!("{ok}trigger_line = \"Line1\"\n"), "sensor[0].trigger_line"),
+        (&format!("{ok}device = \"/dev/video0\"\n"), "sensor[0].device"),
+        (&format!("{ok}gain_db = -3.0\n"), "sensor[0].gain_db"),
+        (&format!("{ok}settle_ms = 1e9\n"), "sensor[0].settle_ms"),
+        (
+            "[cell]\nname = \"c\"\n[[sensor]]\nname = \"s1\"\nbackend = \"replay\"\nscene = \"x.toml\"\n",
+            "sensor[0].recording",
+        ),
+        (
+            "[cell]\nname = \"c\"\n[[sensor]]\nname = \"s1\"\nbackend = \"replay\"\nrecording = \"r\"\n",
+            "sensor[0].scene",
         ),
         ("[cell]\nname = \"c\"\n[zenoh]\nmode = \"router\"\n", "zenoh.mode"),
         (&format!("{ok}[workers]\nqueue = 1000000000000000\n"), "workers.queue"),
@@ -211,13 +238,17 @@ fn once_scans_the_builtin_mock_cell() {
 fn a_fault_in_one_pair_fails_that_scan_and_the_next_succeeds() {
     use ris_drivers::mock::Fault;
     let config = CellConfig::load(&config_dir().join("mock-cell.toml")).expect("config");
-    let mut pairs = ris_daemon::scan::prepare(&config, 3).expect("pairs");
+    let mut pairs = ris_daemon::pair::open_all(&config, 3).expect("pairs");
     let data = tempfile::tempdir().expect("tmp");
     // s2's camera ignores four triggers in a row: one slide exhausts its retries.
     let s2 = pairs.iter().position(|p| p.name == "s2").expect("s2");
-    let at = pairs[s2].faults.exposures() + 5;
+    let faults = pairs[s2]
+        .faults
+        .clone()
+        .expect("a mock pair injects faults");
+    let at = faults.exposures() + 5;
     for k in 0..4 {
-        pairs[s2].faults.at(at + k, Fault::MissedTrigger);
+        faults.at(at + k, Fault::MissedTrigger);
     }
     let states = std::sync::Mutex::new(Vec::new());
     let record = |s: &ris_daemon::scan::ScanState| {

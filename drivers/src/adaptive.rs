@@ -73,6 +73,8 @@ pub struct StepReport {
     pub frames: u64,
     /// Figures of the step.
     pub detail: String,
+    /// Seconds of the step: its projections and the computation that follows them.
+    pub seconds: f64,
 }
 
 /// The result of an adaptive scan.
@@ -111,6 +113,14 @@ pub fn adaptive_scan(
 ) -> Result<AdaptiveScan, AdaptiveError> {
     let mp = &params.mask;
     let mut steps = Vec::new();
+    let mut mark = std::time::Instant::now();
+    // Seconds since the previous step ended.
+    let mut lap = move || {
+        let now = std::time::Instant::now();
+        let s = (now - mark).as_secs_f64();
+        mark = now;
+        s
+    };
     let base_us = camera.exposure_us();
     let record = |step: &'static str,
                   camera: &mut dyn Camera,
@@ -147,6 +157,7 @@ pub fn adaptive_scan(
     let r0 = response_of(&cap0, 1.0);
     let factor = r0.choose_exposure(mp);
     steps.push(StepReport {
+        seconds: lap(),
         step: "flats",
         frames: n0,
         detail: format!("exposure ×{factor:.2} chosen for the dark parts"),
@@ -200,6 +211,7 @@ pub fn adaptive_scan(
     let measured_a = measure(&cap_a)?;
     let (map_a, fraction_a) = CodeMap::refined(&guess, &measured_a, mp);
     steps.push(StepReport {
+        seconds: lap(),
         step: "crosstalk at base exposure",
         frames: na,
         detail: format!("measured on {:.1} % of the camera", 100.0 * fraction_a),
@@ -217,6 +229,7 @@ pub fn adaptive_scan(
         let (cap1, n1) = record("flats at exposure", camera, projector, &flats, progress)?;
         let r1 = response_of(&cap1, factor);
         steps.push(StepReport {
+            seconds: lap(),
             step: "flats at exposure",
             frames: n1,
             detail: format!("{exposure_us:.0} µs"),
@@ -298,6 +311,7 @@ pub fn adaptive_scan(
             "adaptive: crosstalk measured"
         );
         steps.push(StepReport {
+            seconds: lap(),
             step: "advanced projection",
             frames: n,
             detail: format!(
@@ -323,6 +337,7 @@ pub fn adaptive_scan(
         let fb = feedback(&mut desired, w, b, mp.feedback_spread, mp);
         let saturated = fb.saturated as f32 / fb.considered.max(1) as f32;
         steps.push(StepReport {
+            seconds: lap(),
             step: "feedback",
             frames: n,
             detail: format!(
@@ -352,6 +367,7 @@ pub fn adaptive_scan(
         progress,
     )?;
     steps.push(StepReport {
+        seconds: lap(),
         step: "final projection",
         frames: n,
         detail: format!("{} slides", gray.len()),

@@ -10,6 +10,7 @@ pub mod adaptive;
 pub mod camera;
 pub mod clock;
 pub mod conformance;
+pub mod device;
 pub mod error;
 pub mod frame;
 pub mod mock;
@@ -17,6 +18,7 @@ pub mod projector;
 pub mod sequence;
 
 pub use camera::{Camera, CameraInfo, TriggerMode};
+pub use device::{CameraSettings, ProjectorSettings};
 pub use error::{DriverError, ErrorKind, Result};
 pub use frame::Frame;
 pub use projector::{Projector, ProjectorInfo, Shown, Slide};

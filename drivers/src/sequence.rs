@@ -36,6 +36,9 @@ pub struct SequenceParams {
     pub max_pair_error: f32,
     /// Wait between presentation and trigger (projector response, rolling displays).
     pub settle: Duration,
+    /// How each exposure starts: `Software` (a trigger after the slide is presented) or
+    /// `Hardware` (the projector's sync output on a camera line exposes at presentation).
+    pub trigger: TriggerMode,
 }
 
 impl Default for SequenceParams {
@@ -48,6 +51,7 @@ impl Default for SequenceParams {
             min_contrast: 12.0,
             max_pair_error: 0.2,
             settle: Duration::ZERO,
+            trigger: TriggerMode::Software,
         }
     }
 }
@@ -130,7 +134,7 @@ struct Run<'a> {
 }
 
 /// Record `slides` (unique patterns, one shared mask or none) with `camera` and `projector`
-/// under software trigger; `progress` is called after every slide.
+/// under the trigger of `params`; `progress` is called after every slide.
 pub fn acquire(
     camera: &mut dyn Camera,
     projector: &mut dyn Projector,
@@ -140,6 +144,12 @@ pub fn acquire(
     progress: &mut dyn FnMut(Progress),
 ) -> Result<Acquisition, SequenceError> {
     validate(layout, slides, projector)?;
+    if params.trigger == TriggerMode::FreeRun {
+        return Err(SequenceError::Invalid(
+            "a free-running camera cannot be sequenced: use the software or a hardware trigger"
+                .into(),
+        ));
+    }
     let info = camera.info().clone();
     let driver = |stage: &str| {
         let stage = stage.to_string();
@@ -150,8 +160,8 @@ pub fn acquire(
         .map_err(driver("uploading the slides"))?;
     let _ = camera.stop();
     camera
-        .set_trigger(TriggerMode::Software)
-        .map_err(driver("selecting the software trigger"))?;
+        .set_trigger(params.trigger.clone())
+        .map_err(driver("selecting the trigger"))?;
     camera.start().map_err(driver("starting the camera"))?;
     let mut run = Run {
         camera,
@@ -327,8 +337,8 @@ impl Run<'_> {
                         .map_err(reconnect(&format!("reconnecting after: {e}")))?;
                     let _ = self.camera.stop();
                     self.camera
-                        .set_trigger(TriggerMode::Software)
-                        .map_err(reconnect("restoring the software trigger"))?;
+                        .set_trigger(self.params.trigger.clone())
+                        .map_err(reconnect("restoring the trigger"))?;
                     self.camera
                         .start()
                         .map_err(reconnect("restarting the camera"))?;
@@ -364,6 +374,9 @@ impl Run<'_> {
                 Err(e) => return Err(classify(e)),
             }
         }
+        let hardware = matches!(self.params.trigger, TriggerMode::Hardware { .. });
+        // Under a hardware trigger the exposure starts with the presentation itself.
+        let before_show = now_ns();
         let shown = self.projector.show(slot).map_err(|e| {
             Attempt::Fatal(SequenceError::Driver {
                 stage: format!("showing {}", slide.name()),
@@ -381,17 +394,40 @@ impl Run<'_> {
             std::thread::sleep(self.params.settle);
         }
         let mut frames: Vec<Frame> = Vec::with_capacity(self.params.average as usize);
-        for _ in 0..self.params.average.max(1) {
-            let t0 = now_ns();
+        for k in 0..self.params.average.max(1) {
+            let t0 = if hardware {
+                if k > 0 {
+                    // One presentation, one exposure: show the slide again.
+                    let t = now_ns();
+                    self.projector.show(slot).map_err(|e| {
+                        Attempt::Fatal(SequenceError::Driver {
+                            stage: format!("showing {}", slide.name()),
+                            source: e,
+                        })
+                    })?;
+                    self.report.shows += 1;
+                    t
+                } else {
+                    before_show
+                }
+            } else {
+                let t = now_ns();
+                self.camera.trigger().map_err(classify)?;
+                t
+            };
             self.report.triggers += 1;
-            self.camera.trigger().map_err(classify)?;
             let f = self
                 .camera
                 .next_frame(self.params.timeout)
                 .map_err(classify)?;
             let last = self.last_id;
             self.last_id = Some(last.map_or(f.frame_id, |l| l.max(f.frame_id)));
-            if f.host_ns < t0.max(shown.presented_ns) {
+            let earliest = if hardware {
+                t0
+            } else {
+                t0.max(shown.presented_ns)
+            };
+            if f.host_ns < earliest {
                 return Err(Attempt::Retry(format!(
                     "frame {} arrived before its trigger (stale)",
                     f.frame_id

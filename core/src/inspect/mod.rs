@@ -336,32 +336,22 @@ fn fit_to_surface(
     let mut it = 0;
     while it < max_iter {
         it += 1;
-        let (ata, atb, n) = pts
-            .par_iter()
-            .fold(
-                || (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros(), 0usize),
-                |(mut ata, mut atb, mut n), x| {
-                    let p = (pose * Point3::from(*x)).coords;
-                    if let Some(c) = cad.query(&p) {
-                        let w = weight(&p.into(), c.distance);
-                        if w > 0.0 {
-                            let nrm = c.normal;
-                            let row = {
-                                let cr = p.cross(&nrm);
-                                Vector6::new(cr.x, cr.y, cr.z, nrm.x, nrm.y, nrm.z)
-                            };
-                            ata += row * row.transpose() * w;
-                            atb += row * (-(p - c.point).dot(&nrm)) * w;
-                            n += 1;
-                        }
-                    }
-                    (ata, atb, n)
-                },
-            )
-            .reduce(
-                || (Matrix6::zeros(), Vector6::zeros(), 0),
-                |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2),
-            );
+        let eq = crate::register::accumulate(pts, |x| {
+            let p = (pose * Point3::from(*x)).coords;
+            let c = cad.query(&p)?;
+            let w = weight(&p.into(), c.distance);
+            if w <= 0.0 {
+                return None;
+            }
+            let nrm = c.normal;
+            let cr = p.cross(&nrm);
+            Some((
+                Vector6::new(cr.x, cr.y, cr.z, nrm.x, nrm.y, nrm.z),
+                -(p - c.point).dot(&nrm),
+                w,
+            ))
+        });
+        let (ata, atb, n) = (eq.ata, eq.atb, eq.count);
         if n < 6 {
             break;
         }

@@ -2,7 +2,7 @@
 //! pairs, the multi-resolution schedule Res = max(1, 2^(4−n)) of Eq. 5.16, point-to-point
 //! (closed form) or point-to-plane (linearised) updates, and convergence on error decrease.
 
-use nalgebra::{Matrix6, Point3, UnitQuaternion, Vector3, Vector6};
+use nalgebra::{Point3, UnitQuaternion, Vector3, Vector6};
 use rayon::prelude::*;
 
 use super::{estimate_normals, fit_rigid, Pose};
@@ -201,27 +201,17 @@ impl Icp {
         kept: &[&(usize, usize, f64)],
     ) -> Option<Pose> {
         let normals = self.normals.as_ref()?;
-        let (ata, atb) = kept
-            .par_iter()
-            .fold(
-                || (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros()),
-                |(mut ata, mut atb), k| {
-                    let n = Vector3::from(normals[k.1]);
-                    if n.norm_squared() > 0.5 {
-                        let p = (pose * Point3::from(moving[k.0])).coords;
-                        let q = Vector3::from(self.points[k.1]);
-                        let c = p.cross(&n);
-                        let row = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
-                        ata += row * row.transpose();
-                        atb += row * (q - p).dot(&n);
-                    }
-                    (ata, atb)
-                },
-            )
-            .reduce(
-                || (Matrix6::zeros(), Vector6::zeros()),
-                |a, b| (a.0 + b.0, a.1 + b.1),
-            );
+        let eq = super::accumulate(kept, |k| {
+            let n = Vector3::from(normals[k.1]);
+            if n.norm_squared() <= 0.5 {
+                return None;
+            }
+            let p = (pose * Point3::from(moving[k.0])).coords;
+            let q = Vector3::from(self.points[k.1]);
+            let c = p.cross(&n);
+            Some((Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z), (q - p).dot(&n), 1.0))
+        });
+        let (ata, atb) = (eq.ata, eq.atb);
         let x = ata.cholesky()?.solve(&atb);
         let omega = Vector3::new(x[0], x[1], x[2]);
         let rot = UnitQuaternion::from_scaled_axis(omega);

@@ -2,10 +2,12 @@
 //! and ICP (point-to-point and point-to-plane) with multi-resolution and trimmed pairs.
 
 mod icp;
+mod normal_equations;
 mod normals;
 mod rigid;
 
 pub use icp::{Icp, IcpMetric, IcpParams, IcpResult};
+pub use normal_equations::{accumulate, NormalEquations};
 pub use normals::estimate_normals;
 pub use rigid::{fit_rigid, rotation_angle_deg};
 

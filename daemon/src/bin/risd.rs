@@ -5,8 +5,9 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Parser;
+use ris_daemon::cell::{Cell, ScanJob};
 use ris_daemon::config::{CellConfig, MOCK_CELL};
-use ris_daemon::scan::{self, Part, ScanOptions};
+use ris_daemon::scan::{self, ScanMode};
 
 #[derive(Parser)]
 #[command(name = "risd", version, about = "RIS cell daemon")]
@@ -29,6 +30,16 @@ struct Args {
     /// Scan the cell once, write clouds under the data directory, print where, and exit.
     #[arg(long)]
     once: bool,
+    /// With --once: `gray` (default) or `adaptive` (the projection-mask loop per pair).
+    #[arg(long, default_value = "gray", value_parser = ["gray", "adaptive"])]
+    mode: String,
+    /// With --once: also keep every pair's capture set (replayable with `backend = "replay"`).
+    #[arg(long)]
+    keep_captures: bool,
+    /// With --once: the scan's id (its directory name under `<data dir>/scans/`) instead of the
+    /// time.
+    #[arg(long)]
+    scan_id: Option<String>,
 }
 
 fn load(args: &Args) -> Result<CellConfig> {
@@ -114,7 +125,8 @@ fn main() -> Result<()> {
         );
         return Ok(());
     }
-    let config = load(&args)?;
+    let mut config = load(&args)?;
+    config.storage.keep_captures |= args.keep_captures;
     if config.workers.threads > 0 {
         rayon::ThreadPoolBuilder::new()
             .num_threads(config.workers.threads)
@@ -135,23 +147,29 @@ fn main() -> Result<()> {
         tracing::info!(scan = %name, "removed");
     }
     tracing::info!(cell = %config.name, sensors = config.sensors.len(), "preparing the pairs");
-    let mut pairs = scan::prepare(&config, 1)?;
-    // The part is inspected when the cell defines exactly one (as a request without fields).
-    let part = match config.parts.as_slice() {
-        [p] => Some(Part::prepare(p)?),
-        _ => None,
+    let mut cell = Cell::prepare(&config, 1)?;
+    let id = match &args.scan_id {
+        Some(id) => {
+            if id.is_empty()
+                || !id
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
+                || id.starts_with('.')
+            {
+                anyhow::bail!("--scan-id {id:?}: letters, digits, -, _ and . only");
+            }
+            id.clone()
+        }
+        None => scan::new_scan_id(0),
     };
-    let id = scan::new_scan_id(0);
-    let options = ScanOptions {
-        only: None,
-        keep_captures: config.storage.keep_captures,
-        part: part.as_ref(),
-        tag: None,
+    let job = ScanJob {
+        // The part is inspected when the cell defines exactly one (as a request without fields).
+        part: (config.parts.len() == 1).then_some(0),
+        mode: ScanMode::parse(&args.mode).unwrap_or_default(),
+        ..ScanJob::default()
     };
-    let (report, dir) = scan::run(
-        &config.name,
-        &mut pairs,
-        options,
+    let (report, dir) = cell.scan(
+        &job,
         data_dir,
         &id,
         &|| false,
@@ -159,9 +177,10 @@ fn main() -> Result<()> {
     )?;
     for s in &report.sensors {
         println!(
-            "{}: {} points (acquired {:.2}–{:.2} s, computed {:.2}–{:.2} s: decode {:.2} s, reconstruct {:.2} s, merge {:.2} s)",
+            "{}: {} points, {} frames (acquired {:.2}–{:.2} s, computed {:.2}–{:.2} s: decode {:.2} s, reconstruct {:.2} s, merge {:.2} s)",
             s.sensor,
             s.points,
+            s.frames,
             s.acquire.0,
             s.acquire.1,
             s.compute.0,

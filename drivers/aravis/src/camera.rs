@@ -301,7 +301,9 @@ impl AravisCamera {
             bit_depth: self.info.bit_depth,
             image,
             frame_id: buffer.frame_id(),
-            host_ns: buffer.system_timestamp(),
+            // The sequencer's monotonic clock (Aravis's system timestamp is wall-clock time,
+            // which no trigger time can be compared with).
+            host_ns: ris_drivers::clock::now_ns(),
             device_ns: buffer.timestamp(),
             exposure_us: self.exposure_us,
             gain_db: self.gain_db,

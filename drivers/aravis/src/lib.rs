@@ -18,3 +18,32 @@ pub use loopback::{Fill, LoopbackCamera};
 
 /// Whether this build includes the Aravis backend.
 pub const AVAILABLE: bool = cfg!(feature = "aravis");
+
+/// Open the camera of a pair from its settings (an IP address opens it directly, `fake` the
+/// in-process fake, anything else is a device id), set to the calibrated size as a region of
+/// interest at the origin, with exposure, gain and trigger applied.
+pub fn open_camera(
+    settings: &ris_drivers::CameraSettings,
+) -> ris_drivers::Result<Box<dyn ris_drivers::Camera>> {
+    #[cfg(feature = "aravis")]
+    {
+        let (w, h) = settings.size;
+        let mut camera = AravisCamera::open(
+            DeviceSpec::parse(&settings.device),
+            OpenOptions {
+                roi: Some((0, 0, w as i32, h as i32)),
+                ..OpenOptions::default()
+            },
+        )?;
+        ris_drivers::device::configure(&mut camera, settings)?;
+        Ok(Box::new(camera))
+    }
+    #[cfg(not(feature = "aravis"))]
+    {
+        Err(ris_drivers::device::unavailable(
+            "GigE Vision (Aravis)",
+            &settings.device,
+            "aravis",
+        ))
+    }
+}

@@ -5,6 +5,8 @@
 //! presented. Behind the cargo feature `window` (winit + wgpu).
 
 #[cfg(feature = "window")]
+pub mod screen;
+#[cfg(feature = "window")]
 mod window;
 
 #[cfg(feature = "window")]
@@ -12,3 +14,26 @@ pub use window::{WindowOptions, WindowProjector};
 
 /// Whether this build can open projector windows.
 pub const AVAILABLE: bool = cfg!(feature = "window");
+
+/// Open the projector of a pair from its settings: a full-screen window on monitor
+/// `settings.monitor`, which must have the projector's native size.
+pub fn open_projector(
+    settings: &ris_drivers::ProjectorSettings,
+) -> ris_drivers::Result<Box<dyn ris_drivers::Projector>> {
+    #[cfg(feature = "window")]
+    {
+        Ok(Box::new(WindowProjector::open(&WindowOptions {
+            width: settings.width,
+            height: settings.height,
+            monitor: settings.monitor as usize,
+        })?))
+    }
+    #[cfg(not(feature = "window"))]
+    {
+        Err(ris_drivers::device::unavailable(
+            "projector window",
+            &format!("monitor {}", settings.monitor),
+            "projector",
+        ))
+    }
+}

@@ -15,7 +15,7 @@ use winit::application::ApplicationHandler;
 use winit::dpi::{PhysicalPosition, PhysicalSize};
 use winit::event::WindowEvent;
 use winit::event_loop::{ActiveEventLoop, ControlFlow, EventLoop, EventLoopProxy};
-use winit::platform::x11::EventLoopBuilderExtX11;
+use winit::platform::x11::{EventLoopBuilderExtX11, WindowAttributesExtX11};
 use winit::window::{Fullscreen, Window, WindowId};
 
 /// How long opening the window and the GPU device may take.
@@ -242,39 +242,44 @@ struct Gpu {
 impl App {
     fn open(&mut self, event_loop: &ActiveEventLoop) -> Result<()> {
         let (w, h) = (self.options.width, self.options.height);
-        let monitors: Vec<_> = event_loop.available_monitors().collect();
-        let monitor = monitors.get(self.options.monitor).cloned().ok_or_else(|| {
+        // The monitor as RandR lists it (virtual monitors included); winit only knows CRTCs.
+        let screen = crate::screen::Screen::connect(None)?;
+        let target = screen.monitor(self.options.monitor).map_err(|e| {
             error(
                 ErrorKind::InvalidArgument,
                 &self.device,
-                format!(
-                    "monitor {} does not exist ({} connected)",
-                    self.options.monitor,
-                    monitors.len()
-                ),
+                format!("projector monitor {}: {}", self.options.monitor, e.message),
             )
         })?;
-        let size = monitor.size();
-        if (size.width, size.height) != (w, h) {
+        drop(screen);
+        if (u32::from(target.width), u32::from(target.height)) != (w, h) {
             return Err(error(
                 ErrorKind::InvalidArgument,
                 &self.device,
                 format!(
-                    "monitor {} is {}x{}, the projector is {w}x{h}: set the monitor's mode to the projector's native resolution",
-                    self.options.monitor, size.width, size.height
+                    "monitor {} ({}) is {}x{}, the projector is {w}x{h}: set the monitor's mode to the projector's native resolution",
+                    self.options.monitor, target.name, target.width, target.height
                 ),
             ));
         }
-        let pos = monitor.position();
-        // Without a window manager the borderless-fullscreen request is ignored: size and
-        // position are set explicitly as well.
-        let attrs = Window::default_attributes()
+        let (x, y) = (i32::from(target.x), i32::from(target.y));
+        // A CRTC with exactly this rectangle is a real output: full screen on it, so a window
+        // manager keeps it there. Otherwise (a virtual monitor, part of a larger output) the
+        // window is placed on the rectangle and bypasses the window manager.
+        let crtc = event_loop.available_monitors().find(|m| {
+            let (p, s) = (m.position(), m.size());
+            (p.x, p.y, s.width, s.height) == (x, y, w, h)
+        });
+        let mut attrs = Window::default_attributes()
             .with_title("RIS projector")
             .with_decorations(false)
             .with_resizable(false)
             .with_inner_size(PhysicalSize::new(w, h))
-            .with_position(PhysicalPosition::new(pos.x, pos.y))
-            .with_fullscreen(Some(Fullscreen::Borderless(Some(monitor))));
+            .with_position(PhysicalPosition::new(x, y));
+        attrs = match crtc {
+            Some(m) => attrs.with_fullscreen(Some(Fullscreen::Borderless(Some(m)))),
+            None => attrs.with_override_redirect(true),
+        };
         let window = Arc::new(event_loop.create_window(attrs).map_err(|e| {
             error(
                 ErrorKind::Failed,

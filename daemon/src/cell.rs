@@ -1,0 +1,121 @@
+//! The cell as one thing that scans: its pairs opened through their backends and its parts
+//! indexed, prepared once; the service's worker and `risd --once` both scan through it.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Result;
+use serde::Serialize;
+
+use crate::config::CellConfig;
+use crate::pair::{self, DriverState, Pair};
+use crate::scan::{self, Part, ScanMode, ScanOptions, ScanReport, ScanState};
+
+/// What one scan of the cell is asked to do.
+#[derive(Clone, Debug, Default)]
+pub struct ScanJob {
+    /// Sensors to scan (`None`: all).
+    pub sensors: Option<Vec<String>>,
+    /// Index of the part to inspect.
+    pub part: Option<usize>,
+    /// The request's free text.
+    pub tag: Option<String>,
+    /// How the pairs acquire.
+    pub mode: ScanMode,
+}
+
+/// One pair's line in health.
+#[derive(Clone, Debug, Serialize)]
+pub struct PairStatus {
+    /// Sensor.
+    pub sensor: String,
+    /// Backend.
+    pub backend: String,
+    /// Camera id.
+    pub camera: String,
+    /// Projector id.
+    pub projector: String,
+    /// Driver state.
+    #[serde(flatten)]
+    pub driver: DriverState,
+}
+
+/// A prepared cell.
+pub struct Cell {
+    /// Cell name.
+    pub name: String,
+    /// Pairs in configuration order.
+    pub pairs: Vec<Pair>,
+    /// Parts in configuration order.
+    pub parts: Vec<Part>,
+    keep_captures: bool,
+}
+
+impl Cell {
+    /// Open every pair and index every part of `config`; `seed` varies simulated noise.
+    pub fn prepare(config: &CellConfig, seed: u64) -> Result<Cell> {
+        let parts = config
+            .parts
+            .iter()
+            .map(Part::prepare)
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Cell {
+            name: config.name.clone(),
+            pairs: pair::open_all(config, seed)?,
+            parts,
+            keep_captures: config.storage.keep_captures,
+        })
+    }
+
+    /// Scan into `<data_dir>/scans/<scan_id>` (see [`scan::run`]). Pairs whose camera was
+    /// lost try to reconnect first.
+    pub fn scan(
+        &mut self,
+        job: &ScanJob,
+        data_dir: &Path,
+        scan_id: &str,
+        cancelled: &(dyn Fn() -> bool + Sync),
+        state: &(dyn Fn(&ScanState) + Sync),
+    ) -> Result<(ScanReport, PathBuf)> {
+        self.reconnect();
+        let options = ScanOptions {
+            only: job.sensors.as_deref(),
+            keep_captures: self.keep_captures,
+            part: job.part.and_then(|i| self.parts.get(i)),
+            tag: job.tag.as_deref(),
+            mode: job.mode,
+        };
+        scan::run(
+            &self.name,
+            &mut self.pairs,
+            options,
+            data_dir,
+            scan_id,
+            cancelled,
+            state,
+        )
+    }
+
+    /// Try once to reopen every lost camera; true when every pair is connected.
+    pub fn reconnect(&mut self) -> bool {
+        // Every lost pair gets its try, not only those before the first failure.
+        let tried: Vec<bool> = self.pairs.iter_mut().map(Pair::try_reconnect).collect();
+        tried.into_iter().all(|ok| ok)
+    }
+
+    /// Every pair's drivers, for health.
+    pub fn status(&self) -> Vec<PairStatus> {
+        self.pairs
+            .iter()
+            .map(|p| {
+                let (camera, projector) = p.devices();
+                PairStatus {
+                    sensor: p.name.clone(),
+                    backend: p.backend.to_string(),
+                    camera,
+                    projector,
+                    driver: p.state.clone(),
+                }
+            })
+            .collect()
+    }
+}

@@ -1,0 +1,276 @@
+//! A sensor pair as risd runs it: its camera and projector opened through their backend as
+//! trait objects, the sensor model that turns its captures into clouds, the reference decode
+//! the adaptive loop starts from, and the state of its drivers for health.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{anyhow, Context, Result};
+use ris_core::capture::CaptureSet;
+use ris_core::decode::{decode, DecodeParams, Decoded};
+use ris_core::pattern::CodeLayout;
+use ris_core::sensor::{ModelChoice, Reconstructor, Sensor};
+use ris_core::sim::{Scene, Simulator};
+use ris_drivers::mock::{replay_pair, simulated_pair, FaultInjector};
+use ris_drivers::sequence::SequenceParams;
+use ris_drivers::{Camera, CameraSettings, ErrorKind, Projector, ProjectorSettings};
+use serde::Serialize;
+
+use crate::config::{Backend, CellConfig, SensorConfig};
+
+/// The state of a pair's drivers, as health reports it.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+#[serde(tag = "state", rename_all = "snake_case")]
+pub enum DriverState {
+    /// Both devices answer.
+    Connected,
+    /// The camera was lost; risd tries to reopen it between scans.
+    Reconnecting {
+        /// The last error.
+        reason: String,
+    },
+}
+
+/// A sensor pair ready to scan.
+pub struct Pair {
+    /// Sensor name.
+    pub name: String,
+    /// Exposure group.
+    pub group: u32,
+    /// Backend name (`mock`, `aravis`, `v4l2`, `replay`).
+    pub backend: &'static str,
+    pub(crate) camera: Box<dyn Camera>,
+    pub(crate) projector: Box<dyn Projector>,
+    /// Fault injection of a simulated pair (tests); `None` for every other backend.
+    pub faults: Option<FaultInjector>,
+    pub(crate) layout: CodeLayout,
+    pub(crate) reconstructor: Arc<Reconstructor>,
+    pub(crate) to_common: nalgebra::Matrix4<f64>,
+    /// The decoded reference recording (with row codes) the adaptive loop starts from.
+    pub(crate) reference: Option<Arc<Decoded>>,
+    /// Sequencing of this pair (trigger, settle time).
+    pub(crate) sequence: SequenceParams,
+    /// The configured exposure, restored after an adaptive scan chose another.
+    pub(crate) exposure_us: f64,
+    /// The drivers' state.
+    pub state: DriverState,
+}
+
+impl Pair {
+    /// The camera's and the projector's ids.
+    pub fn devices(&self) -> (String, String) {
+        (
+            self.camera.info().id.clone(),
+            self.projector.info().id.clone(),
+        )
+    }
+
+    /// After a scan: whether its error says this pair's camera is gone.
+    pub(crate) fn note_failure(&mut self, error: &anyhow::Error) {
+        let lost = error.chain().any(|e| {
+            e.downcast_ref::<ris_drivers::DriverError>()
+                .is_some_and(|d| d.kind == ErrorKind::Disconnected)
+                || e.downcast_ref::<ris_drivers::sequence::SequenceError>()
+                    .is_some_and(|s| {
+                        matches!(s, ris_drivers::sequence::SequenceError::Driver { source, .. }
+                            if source.kind == ErrorKind::Disconnected)
+                    })
+        });
+        if lost {
+            tracing::warn!(sensor = %self.name, "camera lost; reconnecting between scans");
+            self.state = DriverState::Reconnecting {
+                reason: format!("{error:#}"),
+            };
+        }
+    }
+
+    /// Try once to reopen a lost camera (restoring its settings); true when connected.
+    pub fn try_reconnect(&mut self) -> bool {
+        if self.state == DriverState::Connected {
+            return true;
+        }
+        match self.camera.reconnect() {
+            Ok(()) => {
+                tracing::info!(sensor = %self.name, "camera back");
+                self.state = DriverState::Connected;
+                true
+            }
+            Err(e) => {
+                tracing::debug!(sensor = %self.name, error = %e, "camera still away");
+                self.state = DriverState::Reconnecting {
+                    reason: e.to_string(),
+                };
+                false
+            }
+        }
+    }
+}
+
+/// The sensor model of a pair: from its scene (simulated and replayed-from-simulation pairs:
+/// the reference is a white board rendered at the sensor's z = 0) or from its sensor file.
+struct Model {
+    layout: CodeLayout,
+    camera_size: (u32, u32),
+    reconstructor: Reconstructor,
+    reference: Option<Decoded>,
+    to_common: nalgebra::Matrix4<f64>,
+    scene: Option<Scene>,
+}
+
+fn model(s: &SensorConfig) -> Result<Model> {
+    let params = DecodeParams::default();
+    if let Some(scene) = &s.scene {
+        let sc = Scene::load(scene).with_context(|| format!("sensor {}: scene", s.name))?;
+        let board = Simulator::new(sc.sprayed().reference());
+        let layout = board.layout();
+        let reference = decode(&board.capture(&layout, 7, &|_, _| {}), &params)
+            .with_context(|| format!("sensor {}: decoding the reference", s.name))?;
+        let reconstructor = Reconstructor::parallax(&sc.camera, sc.projector.center(), &reference)
+            .with_context(|| format!("sensor {}: parallax model", s.name))?;
+        let to_common = s
+            .to_common
+            .ok_or_else(|| anyhow!("sensor {}: no to_common", s.name))?;
+        return Ok(Model {
+            layout,
+            camera_size: (sc.camera.width, sc.camera.height),
+            reconstructor,
+            reference: Some(reference),
+            to_common,
+            scene: Some(sc),
+        });
+    }
+    let path = s
+        .sensor_file
+        .as_ref()
+        .ok_or_else(|| anyhow!("sensor {}: no sensor file", s.name))?;
+    let sensor = Sensor::load(path)
+        .with_context(|| format!("sensor {}: sensor file {}", s.name, path.display()))?;
+    let reconstructor = Reconstructor::new(&sensor, ModelChoice::Auto, &params)
+        .with_context(|| format!("sensor {}: preparing {}", s.name, path.display()))?;
+    let reference = match &sensor.reference {
+        Some(dir) => Some(
+            CaptureSet::load(dir)
+                .and_then(|c| decode(&c, &params))
+                .with_context(|| format!("sensor {}: reference {}", s.name, dir.display()))?,
+        ),
+        None => None,
+    };
+    let to_common = sensor.to_common.ok_or_else(|| {
+        anyhow!(
+            "sensor {}: {} has no [to_common]; calibrate the cell (ris calibrate cell)",
+            s.name,
+            path.display()
+        )
+    })?;
+    let (pw, ph) = sensor.projector_size;
+    Ok(Model {
+        layout: CodeLayout::new(pw, ph),
+        camera_size: (sensor.camera.width, sensor.camera.height),
+        reconstructor,
+        reference,
+        to_common,
+        scene: None,
+    })
+}
+
+/// Open pair `s` through its backend: model first (a bad sensor file fails before any device
+/// is touched), then the projector, then the camera. `seed` varies simulated noise.
+pub fn open(s: &SensorConfig, seed: u64) -> Result<Pair> {
+    let t = Instant::now();
+    let m = model(s)?;
+    let (camera, projector, faults, backend): (
+        Box<dyn Camera>,
+        Box<dyn Projector>,
+        Option<FaultInjector>,
+        &'static str,
+    ) = match &s.backend {
+        Backend::Mock { .. } => {
+            let sc = m
+                .scene
+                .clone()
+                .ok_or_else(|| anyhow!("sensor {}: a mock pair needs its scene", s.name))?;
+            let (mut cam, proj, faults) =
+                simulated_pair(Arc::new(Simulator::new(sc)), &s.name, seed);
+            cam.set_exposure_us(s.exposure_us)
+                .with_context(|| format!("sensor {}: exposure", s.name))?;
+            (Box::new(cam), Box::new(proj), Some(faults), "mock")
+        }
+        Backend::Replay { recording } => {
+            let set = CaptureSet::load(recording)
+                .with_context(|| format!("sensor {}: recording", s.name))?;
+            if (set.width, set.height) != m.camera_size || set.layout != m.layout {
+                return Err(anyhow!(
+                    "sensor {}: the recording {} is {}x{} for a {}x{} projector; the sensor model is {}x{} for {}x{}",
+                    s.name,
+                    recording.display(),
+                    set.width,
+                    set.height,
+                    set.layout.width,
+                    set.layout.height,
+                    m.camera_size.0,
+                    m.camera_size.1,
+                    m.layout.width,
+                    m.layout.height
+                ));
+            }
+            let (cam, proj, _) = replay_pair(Arc::new(set), &s.name);
+            (Box::new(cam), Box::new(proj), None, "replay")
+        }
+        Backend::Aravis | Backend::V4l2 => {
+            let monitor = s.projector_monitor.unwrap_or(0);
+            let projector = ris_projector::open_projector(&ProjectorSettings {
+                monitor,
+                width: m.layout.width,
+                height: m.layout.height,
+            })
+            .with_context(|| format!("sensor {}: projector on monitor {monitor}", s.name))?;
+            let settings = CameraSettings {
+                device: s.device.clone().unwrap_or_default(),
+                size: m.camera_size,
+                exposure_us: s.exposure_us,
+                gain_db: s.gain_db,
+                trigger: s.trigger.clone(),
+            };
+            let (camera, name) = if s.backend == Backend::Aravis {
+                (ris_aravis::open_camera(&settings), "aravis")
+            } else {
+                (ris_v4l2::open_camera(&settings), "v4l2")
+            };
+            let camera =
+                camera.with_context(|| format!("sensor {}: camera {}", s.name, settings.device))?;
+            (camera, projector, None, name)
+        }
+    };
+    tracing::info!(
+        sensor = %s.name,
+        backend,
+        camera = %camera.info().id,
+        projector = %projector.info().id,
+        seconds = t.elapsed().as_secs_f64(),
+        "pair ready"
+    );
+    Ok(Pair {
+        name: s.name.clone(),
+        group: s.exposure_group,
+        backend,
+        camera,
+        projector,
+        faults,
+        layout: m.layout,
+        reconstructor: Arc::new(m.reconstructor),
+        to_common: m.to_common,
+        reference: m.reference.map(Arc::new),
+        sequence: SequenceParams {
+            trigger: s.trigger.clone(),
+            settle: s.settle,
+            ..SequenceParams::default()
+        },
+        exposure_us: s.exposure_us,
+        state: DriverState::Connected,
+    })
+}
+
+/// Open every pair of `config`, in file order.
+pub fn open_all(config: &CellConfig, seed: u64) -> Result<Vec<Pair>> {
+    config.sensors.iter().map(|s| open(s, seed)).collect()
+}

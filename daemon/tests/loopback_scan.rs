@@ -104,7 +104,7 @@ fn a_scan_through_the_gige_camera_and_the_projector_window_equals_the_mock_scan(
     let _gige = LoopbackCamera::start(
         "127.0.0.1",
         200.0,
-        Box::new(move |buf: &mut [u8], fw: u32, fh: u32| {
+        Box::new(move |buf: &mut [u8], fw: u32, fh: u32, _exposure_us: f64| {
             if (fw, fh) == (w, h) {
                 buf.copy_from_slice(&frames[shown.load(Ordering::SeqCst)]);
             }

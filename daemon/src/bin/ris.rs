@@ -225,6 +225,37 @@ enum Command {
     /// Cameras: list what can be opened, grab frames.
     #[command(subcommand)]
     Camera(CameraCommand),
+    /// Serve a virtual GigE Vision camera on a loopback address: every frame is SCENE rendered
+    /// under the light a projector monitor of DISPLAY shows at that moment.
+    #[cfg(all(feature = "aravis", feature = "projector"))]
+    VirtualCamera {
+        /// The scene it sees (its projector's size must be the monitor's).
+        #[arg(long)]
+        scene: PathBuf,
+        /// X display of the projector windows, e.g. :42.
+        #[arg(long)]
+        display: String,
+        /// Monitor whose light it sees.
+        #[arg(long, default_value_t = 0)]
+        monitor: usize,
+        /// Loopback address to serve on (GigE Vision's port 3956 is fixed).
+        #[arg(long, default_value = "127.0.0.1")]
+        address: String,
+        /// Stop when the process that started it ends.
+        #[arg(long)]
+        exit_with_parent: bool,
+    },
+    /// Start a virtual cell's rig (Xvfb cut into one monitor per projector, one virtual camera
+    /// per pair) and keep it running until Ctrl-C; then run risd on the virtual cell's config.
+    #[cfg(all(feature = "aravis", feature = "projector"))]
+    VirtualCell {
+        /// Rig file.
+        #[arg(long, default_value = "config/virtual-cell/rig.toml")]
+        rig: PathBuf,
+        /// X display to start (default: a free one).
+        #[arg(long)]
+        display: Option<String>,
+    },
     /// Show a pattern full-screen on a projector (exact 1:1 pixels), or measure the present
     /// latency over a scan's sequence
     Project {
@@ -451,6 +482,57 @@ fn main() -> Result<()> {
                 Model::Classical => ModelChoice::Classical,
             };
             commands::reconstruct::run(&sensor, &capture, model, &decode.params(), &out)?;
+        }
+        #[cfg(all(feature = "aravis", feature = "projector"))]
+        Command::VirtualCamera {
+            scene,
+            display,
+            monitor,
+            address,
+            exit_with_parent,
+        } => {
+            let parent = std::os::unix::process::parent_id();
+            let cam = commands::virtual_cell::virtual_camera(&scene, &display, monitor, &address)?;
+            println!("virtual camera at {address}, lit by monitor {monitor} of {display}");
+            loop {
+                std::thread::sleep(std::time::Duration::from_millis(200));
+                if exit_with_parent && std::os::unix::process::parent_id() != parent {
+                    tracing::info!(
+                        frames = cam.frames.load(std::sync::atomic::Ordering::Relaxed),
+                        "the parent ended; stopping"
+                    );
+                    return Ok(());
+                }
+            }
+        }
+        #[cfg(all(feature = "aravis", feature = "projector"))]
+        Command::VirtualCell { rig, display } => {
+            let exe = anyhow::Context::context(std::env::current_exe(), "locating ris")?;
+            let running = commands::virtual_cell::start_rig(&rig, &exe, display.as_deref())?;
+            println!("virtual cell running on DISPLAY={}", running.display);
+            for (a, m) in running.addresses.iter().zip(&running.monitors) {
+                println!("  camera {a} lit by monitor {m}");
+            }
+            println!(
+                "now: DISPLAY={} risd --config config/virtual-cell.toml   (Ctrl-C here stops the rig)",
+                running.display
+            );
+            let runtime = anyhow::Context::context(
+                tokio::runtime::Builder::new_current_thread()
+                    .enable_all()
+                    .build(),
+                "runtime",
+            )?;
+            runtime.block_on(async {
+                use tokio::signal::unix::{signal, SignalKind};
+                let mut term = signal(SignalKind::terminate())?;
+                tokio::select! {
+                    _ = tokio::signal::ctrl_c() => {}
+                    _ = term.recv() => {}
+                }
+                anyhow::Ok(())
+            })?;
+            drop(running);
         }
         Command::Project {
             pattern,

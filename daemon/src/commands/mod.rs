@@ -14,6 +14,8 @@ pub mod reconstruct;
 pub mod register;
 pub mod scan;
 pub mod simulate;
+#[cfg(all(feature = "aravis", feature = "projector"))]
+pub mod virtual_cell;
 
 use std::path::PathBuf;
 

@@ -12,8 +12,9 @@ use std::ffi::c_void;
 use aravis::glib::translate::ToGlibPtr;
 use ris_drivers::{DriverError, ErrorKind, Result};
 
-/// Writes one frame: the buffer (width × height bytes, Mono8) to fill, width, height.
-pub type Fill = dyn Fn(&mut [u8], u32, u32) + Send + Sync;
+/// Writes one frame: the buffer (width × height bytes, Mono8) to fill, width, height, and
+/// the exposure the camera is set to (µs).
+pub type Fill = dyn Fn(&mut [u8], u32, u32, f64) + Send + Sync;
 
 /// The fake camera, serving on `interface` until dropped.
 pub struct LoopbackCamera {
@@ -86,7 +87,7 @@ impl Drop for LoopbackCamera {
 unsafe extern "C" fn fill_frame(
     buffer: *mut aravis_sys::ArvBuffer,
     data: *mut c_void,
-    _exposure_us: u32,
+    exposure_us: u32,
     _gain: u32,
     pixel_format: aravis_sys::ArvPixelFormat,
 ) {
@@ -117,5 +118,5 @@ unsafe extern "C" fn fill_frame(
     // payload, which for Mono8 is width × height bytes; nothing else accesses the buffer
     // while the fake fills it.
     let pixels = unsafe { std::slice::from_raw_parts_mut(ptr, need) };
-    fill(pixels, w, h);
+    fill(pixels, w, h, f64::from(exposure_us));
 }

@@ -3,9 +3,9 @@
 //! at the fragment's pixel (`textureLoad`, no sampler), so every projector pixel gets exactly
 //! its 8-bit value.
 
-use std::sync::mpsc;
-use std::sync::Arc;
-use std::thread::JoinHandle;
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{mpsc, Arc, Mutex};
 use std::time::Duration;
 
 use ris_core::pattern::CodeLayout;
@@ -53,17 +53,18 @@ pub struct WindowOptions {
 }
 
 enum Command {
-    Load(Vec<Vec<u8>>, mpsc::Sender<Result<()>>),
-    Show(usize, mpsc::Sender<Result<u64>>),
-    Close,
+    Open(u64, WindowOptions, mpsc::Sender<Result<()>>),
+    Load(u64, Vec<Vec<u8>>, mpsc::Sender<Result<()>>),
+    Show(u64, usize, mpsc::Sender<Result<u64>>),
+    Close(u64),
 }
 
 /// A projector that is a borderless full-screen window.
 pub struct WindowProjector {
     info: ProjectorInfo,
     layout: CodeLayout,
+    key: u64,
     proxy: EventLoopProxy<Command>,
-    thread: Option<JoinHandle<()>>,
     slides: usize,
     sequence: u64,
 }
@@ -72,10 +73,57 @@ fn error(kind: ErrorKind, device: &str, message: impl Into<String>) -> DriverErr
     DriverError::new(kind, device, message)
 }
 
+/// The process's display thread: winit allows one event loop per process, so every projector
+/// window of a cell lives on this one thread, started by the first window opened.
+fn display(device: &str) -> Result<EventLoopProxy<Command>> {
+    static DISPLAY: Mutex<Option<std::result::Result<EventLoopProxy<Command>, String>>> =
+        Mutex::new(None);
+    let mut slot = DISPLAY.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(started) = slot.as_ref() {
+        return started
+            .clone()
+            .map_err(|e| error(ErrorKind::Unsupported, device, e));
+    }
+    let (proxy_tx, proxy_rx) = mpsc::channel();
+    let spawned = std::thread::Builder::new()
+        .name("projector-display".into())
+        .spawn(move || {
+            let event_loop = match EventLoop::<Command>::with_user_event()
+                .with_any_thread(true)
+                .build()
+            {
+                Ok(l) => l,
+                Err(e) => {
+                    let _ = proxy_tx.send(Err(format!(
+                        "no display (is DISPLAY set and an X server running?): {e}"
+                    )));
+                    return;
+                }
+            };
+            event_loop.set_control_flow(ControlFlow::Wait);
+            let _ = proxy_tx.send(Ok(event_loop.create_proxy()));
+            let mut app = App {
+                windows: HashMap::new(),
+            };
+            if let Err(e) = event_loop.run_app(&mut app) {
+                tracing::warn!(error = %e, "projector event loop ended with an error");
+            }
+        });
+    let started = match spawned {
+        Ok(_) => proxy_rx
+            .recv_timeout(OPEN_TIMEOUT)
+            .unwrap_or_else(|_| Err("the display thread did not start".into())),
+        Err(e) => Err(format!("spawning the display thread: {e}")),
+    };
+    *slot = Some(started.clone());
+    started.map_err(|e| error(ErrorKind::Unsupported, device, e))
+}
+
 impl WindowProjector {
     /// Open the window on `options.monitor` of the display (X11 `DISPLAY`), set up the GPU
     /// and show black.
     pub fn open(options: &WindowOptions) -> Result<WindowProjector> {
+        static NEXT: AtomicU64 = AtomicU64::new(1);
         let id = format!("window:{}", options.monitor);
         if options.width == 0 || options.height == 0 {
             return Err(error(
@@ -84,95 +132,51 @@ impl WindowProjector {
                 format!("projector size {}x{}", options.width, options.height),
             ));
         }
-        let (proxy_tx, proxy_rx) = mpsc::channel();
-        let (ready_tx, ready_rx) = mpsc::channel();
-        let opts = options.clone();
-        let device = id.clone();
-        let thread = std::thread::Builder::new()
-            .name("projector".into())
-            .spawn(move || {
-                let event_loop = match EventLoop::<Command>::with_user_event()
-                    .with_any_thread(true)
-                    .build()
-                {
-                    Ok(l) => l,
-                    Err(e) => {
-                        let _ = proxy_tx.send(Err(error(
-                            ErrorKind::Unsupported,
-                            &device,
-                            format!("no display (is DISPLAY set and an X server running?): {e}"),
-                        )));
-                        return;
-                    }
-                };
-                event_loop.set_control_flow(ControlFlow::Wait);
-                let _ = proxy_tx.send(Ok(event_loop.create_proxy()));
-                let mut app = App {
-                    options: opts,
-                    device,
-                    ready: Some(ready_tx),
-                    window: None,
-                    gpu: None,
-                    current: None,
-                };
-                if let Err(e) = event_loop.run_app(&mut app) {
-                    tracing::warn!(error = %e, "projector event loop ended with an error");
-                }
-            })
-            .map_err(|e| error(ErrorKind::Failed, &id, format!("spawning its thread: {e}")))?;
-        let proxy = proxy_rx
-            .recv_timeout(OPEN_TIMEOUT)
-            .map_err(|_| error(ErrorKind::Failed, &id, "the window thread did not start"))??;
-        match ready_rx.recv_timeout(OPEN_TIMEOUT) {
-            Ok(Ok(())) => {}
-            Ok(Err(e)) => {
-                let _ = thread.join();
-                return Err(e);
-            }
-            Err(_) => {
-                let _ = proxy.send_event(Command::Close);
-                return Err(error(
-                    ErrorKind::Timeout,
-                    &id,
-                    "the window or GPU was not ready in time",
-                ));
-            }
-        }
-        Ok(WindowProjector {
+        let proxy = display(&id)?;
+        let mut projector = WindowProjector {
             info: ProjectorInfo {
                 id,
                 width: options.width,
                 height: options.height,
             },
             layout: CodeLayout::new(options.width, options.height),
+            key: NEXT.fetch_add(1, Ordering::Relaxed),
             proxy,
-            thread: Some(thread),
             slides: 0,
             sequence: 0,
-        })
+        };
+        let (key, opts) = (projector.key, options.clone());
+        if let Err(e) = projector.call(
+            |tx| Command::Open(key, opts, tx),
+            "opening the window",
+            OPEN_TIMEOUT,
+        ) {
+            // Nothing to close: the display thread keeps no half-open window.
+            projector.key = 0;
+            return Err(e);
+        }
+        Ok(projector)
     }
 
     fn call<T>(
         &self,
         make: impl FnOnce(mpsc::Sender<Result<T>>) -> Command,
         what: &str,
+        timeout: Duration,
     ) -> Result<T> {
         let (tx, rx) = mpsc::channel();
         self.proxy.send_event(make(tx)).map_err(|_| {
             error(
                 ErrorKind::Disconnected,
                 &self.info.id,
-                "the window was closed",
+                "the display thread has ended",
             )
         })?;
-        rx.recv_timeout(COMMAND_TIMEOUT).map_err(|_| {
+        rx.recv_timeout(timeout).map_err(|_| {
             error(
                 ErrorKind::Timeout,
                 &self.info.id,
-                format!(
-                    "{what} did not finish within {} s",
-                    COMMAND_TIMEOUT.as_secs()
-                ),
+                format!("{what} did not finish within {} s", timeout.as_secs()),
             )
         })?
     }
@@ -186,7 +190,12 @@ impl Projector for WindowProjector {
     fn load(&mut self, slides: &[Slide]) -> Result<()> {
         let images: Vec<Vec<u8>> = slides.iter().map(|s| s.render(&self.layout)).collect();
         let n = images.len();
-        self.call(|tx| Command::Load(images, tx), "uploading the slides")?;
+        let key = self.key;
+        self.call(
+            |tx| Command::Load(key, images, tx),
+            "uploading the slides",
+            COMMAND_TIMEOUT,
+        )?;
         self.slides = n;
         Ok(())
     }
@@ -199,7 +208,9 @@ impl Projector for WindowProjector {
                 format!("slide {slot} of {} loaded", self.slides),
             ));
         }
-        let presented_ns = self.call(|tx| Command::Show(slot, tx), "presenting")?;
+        let key = self.key;
+        let presented_ns =
+            self.call(|tx| Command::Show(key, slot, tx), "presenting", COMMAND_TIMEOUT)?;
         self.sequence += 1;
         Ok(Shown {
             slot,
@@ -211,18 +222,21 @@ impl Projector for WindowProjector {
 
 impl Drop for WindowProjector {
     fn drop(&mut self) {
-        let _ = self.proxy.send_event(Command::Close);
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
+        if self.key != 0 {
+            let _ = self.proxy.send_event(Command::Close(self.key));
         }
     }
 }
 
-/// The window thread's state.
+/// Every projector window of the process, on the display thread.
 struct App {
+    windows: HashMap<u64, Projection>,
+}
+
+/// One projector window and its GPU state.
+struct Projection {
     options: WindowOptions,
     device: String,
-    ready: Option<mpsc::Sender<Result<()>>>,
     window: Option<Arc<Window>>,
     gpu: Option<Gpu>,
     current: Option<usize>,
@@ -239,7 +253,7 @@ struct Gpu {
     slides: Vec<(wgpu::Texture, wgpu::BindGroup)>,
 }
 
-impl App {
+impl Projection {
     fn open(&mut self, event_loop: &ActiveEventLoop) -> Result<()> {
         let (w, h) = (self.options.width, self.options.height);
         // The monitor as RandR lists it (virtual monitors included); winit only knows CRTCs.
@@ -566,38 +580,56 @@ impl App {
 }
 
 impl ApplicationHandler<Command> for App {
-    fn resumed(&mut self, event_loop: &ActiveEventLoop) {
-        if self.window.is_some() {
-            return;
-        }
-        let result = self.open(event_loop);
-        let failed = result.is_err();
-        if let Some(tx) = self.ready.take() {
-            let _ = tx.send(result);
-        }
-        if failed {
-            event_loop.exit();
-        }
-    }
+    fn resumed(&mut self, _: &ActiveEventLoop) {}
 
     fn user_event(&mut self, event_loop: &ActiveEventLoop, command: Command) {
+        let missing = |key: u64| error(ErrorKind::Disconnected, "window", format!("no window {key}"));
         match command {
-            Command::Load(images, tx) => {
-                let _ = tx.send(self.load(images));
+            Command::Open(key, options, tx) => {
+                let mut p = Projection {
+                    device: format!("window:{}", options.monitor),
+                    options,
+                    window: None,
+                    gpu: None,
+                    current: None,
+                };
+                let result = p.open(event_loop);
+                if result.is_ok() {
+                    self.windows.insert(key, p);
+                }
+                let _ = tx.send(result);
             }
-            Command::Show(slot, tx) => {
-                let _ = tx.send(self.present(slot));
+            Command::Load(key, images, tx) => {
+                let _ = tx.send(match self.windows.get_mut(&key) {
+                    Some(p) => p.load(images),
+                    None => Err(missing(key)),
+                });
             }
-            Command::Close => event_loop.exit(),
+            Command::Show(key, slot, tx) => {
+                let _ = tx.send(match self.windows.get_mut(&key) {
+                    Some(p) => p.present(slot),
+                    None => Err(missing(key)),
+                });
+            }
+            Command::Close(key) => {
+                self.windows.remove(&key);
+            }
         }
     }
 
-    fn window_event(&mut self, _: &ActiveEventLoop, _: WindowId, event: WindowEvent) {
+    fn window_event(&mut self, _: &ActiveEventLoop, id: WindowId, event: WindowEvent) {
+        let Some(p) = self
+            .windows
+            .values_mut()
+            .find(|p| p.window.as_ref().is_some_and(|w| w.id() == id))
+        else {
+            return;
+        };
         match event {
             // Exposed again (another window covered it): draw the current slide once more.
             WindowEvent::RedrawRequested => {
-                if let Some(slot) = self.current {
-                    if let Err(e) = self.present(slot) {
+                if let Some(slot) = p.current {
+                    if let Err(e) = p.present(slot) {
                         tracing::warn!(error = %e, "projector redraw failed");
                     }
                 }

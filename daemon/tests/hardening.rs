@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use common::{free_port, Risd};
+use common::{ask, client, free_port, wait_end, Risd};
 
 use zenoh::Wait;
 
@@ -51,52 +51,6 @@ fn start(config: &Path, data: &Path, listen: &str, connect: Option<&str>) -> Ris
         args.extend(["--connect".as_ref(), c.as_ref()] as [&OsStr; 2]);
     }
     Risd::start(&args)
-}
-
-fn client(endpoint: &str) -> zenoh::Session {
-    let config = ris_daemon::service::zenoh_config("client", &[], &[endpoint.to_string()])
-        .expect("client config");
-    let t = Instant::now();
-    loop {
-        match zenoh::open(config.clone()).wait() {
-            Ok(s) => return s,
-            Err(e) if t.elapsed() > Duration::from_secs(30) => panic!("no risd at {endpoint}: {e}"),
-            Err(_) => std::thread::sleep(Duration::from_millis(50)),
-        }
-    }
-}
-
-/// Replies to a query: Ok(payload) or Err(error payload).
-fn ask(session: &zenoh::Session, key: &str, payload: Option<&str>) -> Vec<Result<String, String>> {
-    let mut get = session.get(key).timeout(Duration::from_secs(5));
-    if let Some(p) = payload {
-        get = get.payload(p.to_string());
-    }
-    let replies = get.wait().expect("get");
-    let mut out = Vec::new();
-    while let Ok(r) = replies.recv() {
-        out.push(match r.result() {
-            Ok(s) => Ok(String::from_utf8_lossy(&s.payload().to_bytes()).into_owned()),
-            Err(e) => Err(String::from_utf8_lossy(&e.payload().to_bytes()).into_owned()),
-        });
-    }
-    out
-}
-
-/// Wait for `done` or `failed` of `scan_id` among the state publications.
-fn wait_end(
-    states: &mpsc::Receiver<(String, serde_json::Value)>,
-    scan_id: &str,
-) -> serde_json::Value {
-    let t = Instant::now();
-    while t.elapsed() < Duration::from_secs(120) {
-        if let Ok((id, v)) = states.recv_timeout(Duration::from_millis(200)) {
-            if id == scan_id && (v["state"] == "done" || v["state"] == "failed") {
-                return v;
-            }
-        }
-    }
-    panic!("scan {scan_id} did not end");
 }
 
 fn finished_scans(data: &Path) -> Vec<String> {

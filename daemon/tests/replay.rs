@@ -14,7 +14,13 @@ fn a_replayed_scan_equals_the_recorded_scan() {
     let recording = root.join("target/mock-recording");
     let _ = std::fs::remove_dir_all(&recording);
     let o = Command::new(env!("CARGO_BIN_EXE_risd"))
-        .args(["--once", "--keep-captures", "--scan-id", "mock", "--data-dir"])
+        .args([
+            "--once",
+            "--keep-captures",
+            "--scan-id",
+            "mock",
+            "--data-dir",
+        ])
         .arg(&recording)
         .output()
         .expect("risd");
@@ -26,7 +32,11 @@ fn a_replayed_scan_equals_the_recorded_scan() {
     let recorded = recording.join("scans/mock");
     for s in ["s1", "s2", "s3", "s4"] {
         assert!(
-            recorded.join("captures").join(s).join("capture.toml").is_file(),
+            recorded
+                .join("captures")
+                .join(s)
+                .join("capture.toml")
+                .is_file(),
             "{s}'s capture was not kept"
         );
     }

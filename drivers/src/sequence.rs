@@ -368,7 +368,7 @@ impl Run<'_> {
                 Ok(f) => {
                     self.report.stale_frames += 1;
                     tracing::debug!(frame_id = f.frame_id, "discarded a stale frame");
-                    self.last_id = Some(self.last_id.map_or(f.frame_id, |l| l.max(f.frame_id)));
+                    self.last_id = Some(newest(self.last_id, f.frame_id));
                 }
                 Err(e) if e.kind == ErrorKind::Timeout => break,
                 Err(e) => return Err(classify(e)),
@@ -421,7 +421,7 @@ impl Run<'_> {
                 .next_frame(self.params.timeout)
                 .map_err(classify)?;
             let last = self.last_id;
-            self.last_id = Some(last.map_or(f.frame_id, |l| l.max(f.frame_id)));
+            self.last_id = Some(newest(last, f.frame_id));
             let earliest = if hardware {
                 t0
             } else {
@@ -434,17 +434,18 @@ impl Run<'_> {
                 )));
             }
             if let Some(l) = last {
-                if f.frame_id <= l {
+                let step = id_advance(l, f.frame_id);
+                if step <= 0 {
                     return Err(Attempt::Retry(format!(
                         "frame id {} does not advance past {l} (duplicate)",
                         f.frame_id
                     )));
                 }
-                if f.frame_id > l + 1 {
+                if step > 1 {
                     return Err(Attempt::Retry(format!(
                         "frame id jumped from {l} to {} ({} frame(s) dropped)",
                         f.frame_id,
-                        f.frame_id - l - 1
+                        step - 1
                     )));
                 }
             }
@@ -469,6 +470,33 @@ impl Run<'_> {
         }
         let ids = frames.iter().map(|f| f.frame_id).collect();
         Ok((average(&frames), ids))
+    }
+}
+
+/// How far frame id `id` is past `last`: 1 for the next exposure, ≤ 0 for a repeat. Ids that
+/// fit 16 bits are taken as a wrapping counter (GigE Vision 1.x block ids run 1 … 65535 and
+/// then start again at 1), so a camera that has streamed for a while is not taken for one
+/// repeating old frames.
+fn id_advance(last: u64, id: u64) -> i64 {
+    if last <= 0xFFFF && id <= 0xFFFF {
+        let d = (id as i64 - last as i64).rem_euclid(65_536);
+        let d = if d >= 32_768 { d - 65_536 } else { d };
+        // Across the wrap the counter skips block id 0.
+        if id < last && d > 0 {
+            d - 1
+        } else {
+            d
+        }
+    } else {
+        id as i64 - last as i64
+    }
+}
+
+/// The newer of the last id seen and `id`, in the sense of [`id_advance`].
+fn newest(last: Option<u64>, id: u64) -> u64 {
+    match last {
+        Some(l) if id_advance(l, id) <= 0 => l,
+        _ => id,
     }
 }
 
@@ -579,4 +607,24 @@ fn content_failures(
         return vec![(w, reason.clone()), (b, reason)];
     }
     bad
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn frame_ids_wrap_like_gige_vision_block_ids() {
+        use super::id_advance;
+        assert_eq!(id_advance(7, 8), 1);
+        assert_eq!(id_advance(7, 7), 0);
+        assert_eq!(id_advance(8, 7), -1);
+        assert_eq!(id_advance(7, 10), 3);
+        assert_eq!(id_advance(65_535, 1), 1, "the wrap skips 0");
+        assert_eq!(id_advance(65_534, 1), 2);
+        assert!(
+            id_advance(1, 65_535) < 0,
+            "an old frame from before the wrap"
+        );
+        assert_eq!(id_advance(1 << 20, (1 << 20) + 1), 1);
+        assert_eq!(id_advance(1 << 20, 5), 5 - (1 << 20));
+    }
 }

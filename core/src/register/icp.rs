@@ -209,7 +209,11 @@ impl Icp {
             let p = (pose * Point3::from(moving[k.0])).coords;
             let q = Vector3::from(self.points[k.1]);
             let c = p.cross(&n);
-            Some((Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z), (q - p).dot(&n), 1.0))
+            Some((
+                Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z),
+                (q - p).dot(&n),
+                1.0,
+            ))
         });
         let (ata, atb) = (eq.ata, eq.atb);
         let x = ata.cholesky()?.solve(&atb);

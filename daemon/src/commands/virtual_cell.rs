@@ -139,7 +139,8 @@ impl VirtualRig {
         }
     }
 
-    /// Start camera `i` again after [`VirtualRig::kill_camera`].
+    /// Start camera `i` again after [`VirtualRig::kill_camera`]. Not waited for: opening it
+    /// here would take the control channel from a risd reconnecting to it.
     pub fn restart_camera(&mut self, ris: &Path, rig: &Path, i: usize) -> Result<()> {
         let file = load_rig(rig)?;
         let cam = file
@@ -147,9 +148,15 @@ impl VirtualRig {
             .get(i)
             .ok_or_else(|| anyhow!("the rig has no camera {i}"))?;
         let base = rig.parent().unwrap_or(Path::new("."));
-        let child = spawn_camera(ris, &base.join(&cam.scene), &self.display, self.monitors[i], &cam.address)?;
+        let child = spawn_camera(
+            ris,
+            &base.join(&cam.scene),
+            &self.display,
+            self.monitors[i],
+            &cam.address,
+        )?;
         self.cameras[i] = child;
-        wait_for_camera(&cam.address)
+        Ok(())
     }
 }
 
@@ -224,12 +231,26 @@ fn ensure_loopback_address(address: &str) -> Result<()> {
     Ok(())
 }
 
-fn spawn_camera(ris: &Path, scene: &Path, display: &str, monitor: usize, address: &str) -> Result<Child> {
+fn spawn_camera(
+    ris: &Path,
+    scene: &Path,
+    display: &str,
+    monitor: usize,
+    address: &str,
+) -> Result<Child> {
     Command::new(ris)
         .arg("virtual-camera")
         .arg("--scene")
         .arg(scene)
-        .args(["--display", display, "--monitor", &monitor.to_string(), "--address", address, "--exit-with-parent"])
+        .args([
+            "--display",
+            display,
+            "--monitor",
+            &monitor.to_string(),
+            "--address",
+            address,
+            "--exit-with-parent",
+        ])
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .spawn()
@@ -337,7 +358,13 @@ pub fn start_rig(rig: &Path, ris: &Path, display: Option<&str>) -> Result<Virtua
         rig_run.monitors.push(i);
     }
     for (i, c) in file.camera.iter().enumerate() {
-        let child = spawn_camera(ris, &base.join(&c.scene), &display, rig_run.monitors[i], &c.address)?;
+        let child = spawn_camera(
+            ris,
+            &base.join(&c.scene),
+            &display,
+            rig_run.monitors[i],
+            &c.address,
+        )?;
         rig_run.cameras.push(child);
     }
     for c in &file.camera {

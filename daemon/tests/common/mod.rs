@@ -4,6 +4,8 @@
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
+use zenoh::Wait;
+
 /// An Xvfb server on a free display, killed on drop.
 pub struct Xvfb {
     child: Child,
@@ -72,9 +74,15 @@ pub struct Risd {
 impl Risd {
     /// Start `risd ARGS` (logging at info, no colour).
     pub fn start(args: &[&std::ffi::OsStr]) -> Risd {
+        Risd::start_env(args, &[])
+    }
+
+    /// Start `risd ARGS` with extra environment variables (e.g. `DISPLAY`).
+    pub fn start_env(args: &[&std::ffi::OsStr], env: &[(&str, &str)]) -> Risd {
         use std::io::BufRead;
         let mut child = Command::new(env!("CARGO_BIN_EXE_risd"))
             .args(args)
+            .envs(env.iter().copied())
             .env("RIS_LOG", "info")
             .env("NO_COLOR", "1")
             .stderr(Stdio::piped())
@@ -151,4 +159,83 @@ impl Drop for Risd {
     fn drop(&mut self) {
         let _ = self.child.kill();
     }
+}
+
+/// A Zenoh client session connected to `endpoint` (retried for 30 s while risd starts).
+pub fn client(endpoint: &str) -> zenoh::Session {
+    let config = ris_daemon::service::zenoh_config("client", &[], &[endpoint.to_string()])
+        .expect("client config");
+    let t = Instant::now();
+    loop {
+        match zenoh::open(config.clone()).wait() {
+            Ok(s) => return s,
+            Err(e) if t.elapsed() > Duration::from_secs(30) => panic!("no risd at {endpoint}: {e}"),
+            Err(_) => std::thread::sleep(Duration::from_millis(50)),
+        }
+    }
+}
+
+/// Replies to a query: Ok(payload) or Err(error payload).
+pub fn ask(
+    session: &zenoh::Session,
+    key: &str,
+    payload: Option<&str>,
+) -> Vec<Result<String, String>> {
+    let mut get = session.get(key).timeout(Duration::from_secs(5));
+    if let Some(p) = payload {
+        get = get.payload(p.to_string());
+    }
+    let replies = get.wait().expect("get");
+    let mut out = Vec::new();
+    while let Ok(r) = replies.recv() {
+        out.push(match r.result() {
+            Ok(s) => Ok(String::from_utf8_lossy(&s.payload().to_bytes()).into_owned()),
+            Err(e) => Err(String::from_utf8_lossy(&e.payload().to_bytes()).into_owned()),
+        });
+    }
+    out
+}
+
+/// Wait for `done` or `failed` of `scan_id` among the state publications.
+pub fn wait_end(
+    states: &std::sync::mpsc::Receiver<(String, serde_json::Value)>,
+    scan_id: &str,
+) -> serde_json::Value {
+    let t = Instant::now();
+    while t.elapsed() < Duration::from_secs(120) {
+        if let Ok((id, v)) = states.recv_timeout(Duration::from_millis(200)) {
+            if id == scan_id && (v["state"] == "done" || v["state"] == "failed") {
+                return v;
+            }
+        }
+    }
+    panic!("scan {scan_id} did not end");
+}
+
+/// Subscribe to the state publications of `cell`: (scan id, state JSON) on the receiver.
+pub fn states(
+    session: &zenoh::Session,
+    cell: &str,
+) -> (
+    zenoh::pubsub::Subscriber<()>,
+    std::sync::mpsc::Receiver<(String, serde_json::Value)>,
+) {
+    let (tx, rx) = std::sync::mpsc::channel();
+    let sub = session
+        .declare_subscriber(format!("ris/{cell}/scans/*/state"))
+        .callback(move |s| {
+            let id = s
+                .key_expr()
+                .as_str()
+                .split('/')
+                .nth(3)
+                .unwrap_or_default()
+                .to_string();
+            if let Ok(v) = serde_json::from_slice(&s.payload().to_bytes()) {
+                let _ = tx.send((id, v));
+            }
+        })
+        .wait()
+        .expect("subscriber");
+    (sub, rx)
 }

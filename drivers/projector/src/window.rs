@@ -209,8 +209,11 @@ impl Projector for WindowProjector {
             ));
         }
         let key = self.key;
-        let presented_ns =
-            self.call(|tx| Command::Show(key, slot, tx), "presenting", COMMAND_TIMEOUT)?;
+        let presented_ns = self.call(
+            |tx| Command::Show(key, slot, tx),
+            "presenting",
+            COMMAND_TIMEOUT,
+        )?;
         self.sequence += 1;
         Ok(Shown {
             slot,
@@ -583,7 +586,13 @@ impl ApplicationHandler<Command> for App {
     fn resumed(&mut self, _: &ActiveEventLoop) {}
 
     fn user_event(&mut self, event_loop: &ActiveEventLoop, command: Command) {
-        let missing = |key: u64| error(ErrorKind::Disconnected, "window", format!("no window {key}"));
+        let missing = |key: u64| {
+            error(
+                ErrorKind::Disconnected,
+                "window",
+                format!("no window {key}"),
+            )
+        };
         match command {
             Command::Open(key, options, tx) => {
                 let mut p = Projection {

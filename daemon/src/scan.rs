@@ -83,6 +83,10 @@ pub struct SensorTiming {
     pub points: usize,
     /// Slides projected (retries and every step of an adaptive scan included).
     pub frames: u64,
+    /// Seconds presenting slides (Gray scans).
+    pub present_seconds: f64,
+    /// Seconds from triggers to their frames (Gray scans).
+    pub frame_wait_seconds: f64,
     /// The steps of an adaptive scan.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub phases: Vec<PhaseTiming>,
@@ -409,6 +413,8 @@ fn scan_into(
                     };
                     timings[i].acquire = (a0, a1);
                     timings[i].frames = acq.frames;
+                    timings[i].present_seconds = acq.present_s;
+                    timings[i].frame_wait_seconds = acq.frame_wait_s;
                     timings[i].phases = acq.phases;
                     last_frame = last_frame.max(a1);
                     if options.keep_captures {
@@ -485,6 +491,8 @@ struct Recorded {
     capture: CaptureSet,
     frames: u64,
     phases: Vec<PhaseTiming>,
+    present_s: f64,
+    frame_wait_s: f64,
 }
 
 /// Record one pair: the Gray sequence, or the adaptive loop (its exposure restored after).
@@ -521,6 +529,8 @@ fn acquire_pair(
                 capture: acq.capture,
                 frames: acq.report.shows,
                 phases: Vec::new(),
+                present_s: acq.report.present_s,
+                frame_wait_s: acq.report.frame_wait_s,
             })
         }
         ScanMode::Adaptive => {
@@ -565,6 +575,8 @@ fn acquire_pair(
                         detail: s.detail,
                     })
                     .collect(),
+                present_s: 0.0,
+                frame_wait_s: 0.0,
             })
         }
     }

@@ -21,6 +21,18 @@ fn reference_and_mock_cell_configs_parse() {
     assert_eq!(m.sensors.len(), 4);
     assert_eq!(m.exposure_groups().len(), 2);
     m.check_files().expect("mock cell files");
+    let v = CellConfig::load(&config_dir().join("virtual-cell.toml")).expect("virtual-cell.toml");
+    assert_eq!(v.sensors.len(), 4);
+    assert!(v
+        .sensors
+        .iter()
+        .all(|s| s.backend == ris_daemon::config::Backend::Aravis));
+    v.check_files().expect("virtual cell files");
+    let r = CellConfig::load(&config_dir().join("replay-cell.toml")).expect("replay-cell.toml");
+    assert!(r
+        .sensors
+        .iter()
+        .all(|s| matches!(s.backend, ris_daemon::config::Backend::Replay { .. })));
 }
 
 #[test]

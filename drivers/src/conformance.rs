@@ -27,8 +27,9 @@ fn sized(id: &str, width: u32, height: u32) -> Verdict {
 
 /// A camera: sane info; exposure set and read back, invalid values refused as
 /// `InvalidArgument`; in software-trigger mode no frame without a trigger (`Timeout`), one
-/// frame per trigger of the advertised size with increasing ids and host times and the exposure
-/// it was taken with; stop ends the stream. `timeout` bounds each wait for a frame.
+/// frame per trigger of the advertised size with increasing ids, the exposure it was taken
+/// with, and a host time on the sequencer's clock between its trigger and its arrival; stop
+/// ends the stream. `timeout` bounds each wait for a frame.
 pub fn camera(cam: &mut dyn Camera, timeout: Duration) -> Verdict {
     let info = cam.info().clone();
     let id = &info.id;
@@ -63,11 +64,21 @@ pub fn camera(cam: &mut dyn Camera, timeout: Duration) -> Verdict {
         }
         let mut last: Option<(u64, u64)> = None;
         for k in 0..3 {
+            let triggered = crate::clock::now_ns();
             cam.trigger()
                 .map_err(|e| format!("{id}: trigger {k}: {e}"))?;
             let f = cam
                 .next_frame(timeout)
                 .map_err(|e| format!("{id}: frame of trigger {k}: {e}"))?;
+            let received = crate::clock::now_ns();
+            // One clock for the sequencer and every backend: a frame arrives after its
+            // trigger and before now (a wall-clock or device time fails this).
+            ensure!(
+                (triggered..=received).contains(&f.host_ns),
+                "{id}: frame {} stamped {} ns, outside its trigger {triggered} … arrival {received} (host_ns must be ris_drivers::clock::now_ns)",
+                f.frame_id,
+                f.host_ns
+            );
             ensure!(
                 (f.width(), f.height()) == (info.width, info.height),
                 "{id}: frame {}x{} from a {}x{} camera",

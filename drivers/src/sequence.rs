@@ -96,6 +96,10 @@ pub struct SequenceReport {
     pub stale_frames: u64,
     /// Reconnects performed.
     pub reconnects: u32,
+    /// Seconds inside `Projector::show` (upload excluded: the present and its wait).
+    pub present_s: f64,
+    /// Seconds from each trigger (or presentation, under a hardware trigger) to its frame.
+    pub frame_wait_s: f64,
 }
 
 /// Progress of a sequence.
@@ -383,6 +387,7 @@ impl Run<'_> {
                 source: e,
             })
         })?;
+        self.report.present_s += (now_ns() - before_show) as f64 * 1e-9;
         self.report.shows += 1;
         if shown.slot != slot {
             return Err(Attempt::Retry(format!(
@@ -420,6 +425,7 @@ impl Run<'_> {
                 .camera
                 .next_frame(self.params.timeout)
                 .map_err(classify)?;
+            self.report.frame_wait_s += now_ns().saturating_sub(t0) as f64 * 1e-9;
             let last = self.last_id;
             self.last_id = Some(newest(last, f.frame_id));
             let earliest = if hardware {

@@ -494,13 +494,19 @@ fn main() -> Result<()> {
             let parent = std::os::unix::process::parent_id();
             let cam = commands::virtual_cell::virtual_camera(&scene, &display, monitor, &address)?;
             println!("virtual camera at {address}, lit by monitor {monitor} of {display}");
+            let mut reported = 0;
+            let mut since = std::time::Instant::now();
             loop {
                 std::thread::sleep(std::time::Duration::from_millis(200));
+                let (frames, grab_ms, render_ms) = cam.stats();
+                if frames != reported && since.elapsed().as_secs() >= 5 {
+                    // Where a frame's time goes, for the operator and the benchmark.
+                    tracing::info!(frames, grab_ms, render_ms, "virtual camera");
+                    (reported, since) = (frames, std::time::Instant::now());
+                }
                 if exit_with_parent && std::os::unix::process::parent_id() != parent {
-                    tracing::info!(
-                        frames = cam.frames.load(std::sync::atomic::Ordering::Relaxed),
-                        "the parent ended; stopping"
-                    );
+                    let (frames, grab_ms, render_ms) = cam.stats();
+                    tracing::info!(frames, grab_ms, render_ms, "the parent ended; stopping");
                     return Ok(());
                 }
             }

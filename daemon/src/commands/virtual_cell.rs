@@ -27,6 +27,18 @@ pub struct VirtualCamera {
     _gige: LoopbackCamera,
     /// Frames rendered so far.
     pub frames: Arc<AtomicU64>,
+    /// Nanoseconds spent reading the monitor back, and rendering, over all frames.
+    pub spent_ns: Arc<[AtomicU64; 2]>,
+}
+
+impl VirtualCamera {
+    /// Frames so far, and mean ms per frame reading the screen and rendering.
+    pub fn stats(&self) -> (u64, f64, f64) {
+        let n = self.frames.load(Ordering::Relaxed);
+        let ms =
+            |i: usize| self.spent_ns[i].load(Ordering::Relaxed) as f64 * 1e-6 / n.max(1) as f64;
+        (n, ms(0), ms(1))
+    }
 }
 
 /// Serve the camera of `scene` on `address` (GigE Vision port 3956), lit by monitor `monitor`
@@ -56,6 +68,8 @@ pub fn virtual_camera(
     let screen = Mutex::new(screen);
     let frames = Arc::new(AtomicU64::new(0));
     let counter = frames.clone();
+    let spent_ns = Arc::new([AtomicU64::new(0), AtomicU64::new(0)]);
+    let spent = spent_ns.clone();
     let fill = move |buf: &mut [u8], w: u32, h: u32, exposure_us: f64| {
         let k = counter.fetch_add(1, Ordering::Relaxed);
         if (w, h) != (cw, ch) {
@@ -63,6 +77,7 @@ pub fn virtual_camera(
             buf.fill(0);
             return;
         }
+        let t0 = Instant::now();
         let mut px = Vec::new();
         let grabbed = screen
             .lock()
@@ -83,7 +98,10 @@ pub fn virtual_camera(
         } else {
             1.0
         };
+        let t1 = Instant::now();
         let image = sim.frame_with(&layout, Pattern::White, Some(&light), exposure, k);
+        spent[0].fetch_add((t1 - t0).as_nanos() as u64, Ordering::Relaxed);
+        spent[1].fetch_add(t1.elapsed().as_nanos() as u64, Ordering::Relaxed);
         if let ris_core::image::Pixels::U8(v) = image.pixels {
             if v.len() == buf.len() {
                 buf.copy_from_slice(&v);
@@ -96,6 +114,7 @@ pub fn virtual_camera(
     Ok(VirtualCamera {
         _gige: gige,
         frames,
+        spent_ns,
     })
 }
 

@@ -163,6 +163,10 @@ pub struct ScanReport {
     pub inspection: Option<InspectionSummary>,
     /// Total, s.
     pub total: f64,
+    /// Every cloud as written (sensors, then `merged`): binary PLY in memory, to publish
+    /// without reading the files back.
+    #[serde(skip)]
+    pub clouds: Vec<(String, Arc<Vec<u8>>)>,
 }
 
 /// The verdict of a scan's inspection (the full report is `report.json` beside the clouds).
@@ -332,18 +336,21 @@ fn scan_into(
         .collect();
     let mut last_frame = 0.0f64;
     type Computed = (Merger, Vec<(usize, usize, (f64, f64), StageSeconds)>);
-    let (merged, done, merge_time) = std::thread::scope(|scope| {
+    let (merged, done, merge_time, clouds) = std::thread::scope(|scope| {
         let recs = &recs;
         // Sensor clouds are written (and synced) on their own thread, off the critical path:
         // the merge needs them only in memory.
         let (wtx, wrx) = mpsc::channel::<(String, PointCloud)>();
-        let writer = scope.spawn(move || -> Result<()> {
+        let writer = scope.spawn(move || -> Result<Vec<(String, Arc<Vec<u8>>)>> {
+            let mut written = Vec::new();
             for (name, cloud) in wrx {
-                cloud
-                    .write_ply(&dir.join(format!("{name}.ply")))
+                let bytes = cloud.to_ply();
+                drop(cloud);
+                ris_core::io::write_atomic(&dir.join(format!("{name}.ply")), &bytes)
                     .with_context(|| format!("writing the cloud of {name}"))?;
+                written.push((name, Arc::new(bytes)));
             }
-            Ok(())
+            Ok(written)
         });
         let worker = scope.spawn(move || -> Result<Computed> {
             let mut merger = Merger::new(MERGE_RADIUS);
@@ -442,15 +449,18 @@ fn scan_into(
             state(&ScanState::Merging);
             let m0 = secs();
             let (merged, _) = merger.finish();
-            merged
-                .write_ply(&dir.join("merged.ply"))
+            let bytes = merged.to_ply();
+            ris_core::io::write_atomic(&dir.join("merged.ply"), &bytes)
                 .context("writing the merged cloud")?;
-            Ok((merged, done, (m0, secs())))
+            Ok((merged, done, (m0, secs()), bytes))
         })();
-        writer
+        let mut clouds = writer
             .join()
             .map_err(|_| anyhow!("the cloud writer panicked"))??;
-        merged
+        merged.map(|(m, d, t, bytes)| {
+            clouds.push(("merged".to_string(), Arc::new(bytes)));
+            (m, d, t, clouds)
+        })
     })?;
     for (i, points, compute, stages) in done {
         timings[i].compute = compute;
@@ -477,6 +487,7 @@ fn scan_into(
         compute_after_last_frame: merge_time.1 - last_frame,
         inspection,
         total: secs(),
+        clouds,
     };
     ris_core::io::write_atomic(
         &dir.join("scan.json"),

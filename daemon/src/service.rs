@@ -634,14 +634,16 @@ fn run_job(job: Job, cell_: &mut Cell, ctx: &WorkerContext) {
     }
     match result {
         Ok((report, dir)) => {
-            let mut names: Vec<String> = report.sensors.iter().map(|s| s.sensor.clone()).collect();
-            names.push("merged".into());
-            for name in names {
-                publish_file(
-                    session,
-                    &format!("ris/{cell}/scans/{id}/cloud/{name}"),
-                    &dir.join(format!("{name}.ply")),
-                );
+            // The clouds as written, from memory.
+            for (name, bytes) in &report.clouds {
+                let key = format!("ris/{cell}/scans/{id}/cloud/{name}");
+                if let Err(e) = session
+                    .put(&key, bytes.as_slice())
+                    .congestion_control(CongestionControl::Block)
+                    .wait()
+                {
+                    tracing::warn!(%key, error = %e, "publication failed");
+                }
             }
             if report.inspection.is_some() {
                 publish_file(

@@ -85,6 +85,12 @@ impl PointCloud {
 
     /// Write a binary little-endian PLY (x y z confidence, float32), atomically.
     pub fn write_ply(&self, path: &Path) -> Result<()> {
+        write_atomic(path, &self.to_ply())
+    }
+
+    /// The binary little-endian PLY of [`PointCloud::write_ply`], in memory (what risd
+    /// publishes).
+    pub fn to_ply(&self) -> Vec<u8> {
         let header = format!(
             "ply\nformat binary_little_endian 1.0\ncomment written by RIS {}\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nproperty float confidence\nend_header\n",
             env!("CARGO_PKG_VERSION"),
@@ -97,7 +103,7 @@ impl PointCloud {
                 buf.extend_from_slice(&v.to_le_bytes());
             }
         }
-        write_atomic(path, &buf)
+        buf
     }
 
     /// Read a PLY file (ASCII, binary little- or big-endian); `confidence` defaults to 1.

@@ -324,3 +324,43 @@ fn mock_pair_passes_the_conformance_suite() {
     conformance::projector(&mut projector).expect("replay projector");
     conformance::camera(&mut camera, Duration::from_secs(2)).expect("replay camera");
 }
+
+#[test]
+fn hardware_trigger_exposes_at_presentation_and_recovers_faults() {
+    // The projector's sync output on the camera's line: no trigger command, one exposure per
+    // presentation, the same frames as under the software trigger; averaging re-shows.
+    let mut b = bench(0.0);
+    let hw = SequenceParams {
+        trigger: TriggerMode::Hardware {
+            source: "Line0".into(),
+        },
+        ..params()
+    };
+    let acq = run(&mut b, &hw).expect("hardware-triggered sequence");
+    assert_exact(&b, &acq.capture);
+    assert_eq!(acq.report.triggers, b.slides.len() as u64);
+    assert!(acq.report.retries.is_empty(), "{:?}", acq.report.retries);
+    let averaged = run(
+        &mut b,
+        &SequenceParams {
+            average: 3,
+            ..hw.clone()
+        },
+    )
+    .expect("averaged");
+    assert_exact(&b, &averaged.capture);
+    assert_eq!(averaged.report.shows, 3 * b.slides.len() as u64);
+    // A dropped and a duplicated frame are caught exactly as under the software trigger.
+    let at = b.faults.exposures();
+    b.faults.at(at + 4, Fault::DropFrame);
+    b.faults.at(at + 9, Fault::DuplicateFrame);
+    let acq = run(&mut b, &hw).expect("recovered");
+    assert_exact(&b, &acq.capture);
+    assert_eq!(acq.report.retries.len(), 2, "{:?}", acq.report.retries);
+    // A free-running camera cannot be sequenced.
+    let free = SequenceParams {
+        trigger: TriggerMode::FreeRun,
+        ..params()
+    };
+    assert!(matches!(run(&mut b, &free), Err(SequenceError::Invalid(_))));
+}

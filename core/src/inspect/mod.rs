@@ -8,11 +8,13 @@
 //! rigid misalignment acts) and trimmed iteratively (fit, drop points whose deviation departs
 //! from the trusted median by more than an annealed threshold, refit, until the set converges).
 
+mod conditioning;
 mod coverage;
 mod output;
 mod regions;
 mod report;
 
+pub use conditioning::{analyse as conditioning, Conditioning, Direction, UNPINNED_STRENGTH};
 pub use coverage::{coverage, Coverage};
 pub use output::{deviation_colour, write_deviation_ply, write_deviation_png};
 pub use regions::{out_of_tolerance_regions, Region};
@@ -179,6 +181,12 @@ pub fn inspect(
         .map(|(p, _)| *p)
         .collect();
     let coverage = coverage::coverage(cad.mesh(), &on_surface, params.min_coverage);
+    // What the fit used: the datum regions when the part has datums, else the surface.
+    let fit_cad: Vec<[f64; 3]> = to_cad(&fit, &pose)
+        .into_iter()
+        .filter(|p| params.datums.is_empty() || in_datums(p, &params.datums))
+        .collect();
+    let conditioning = conditioning::analyse(&fit_cad, cad, near, params.tolerance);
     let report = report::build(
         &points,
         &deviations,
@@ -190,6 +198,7 @@ pub fn inspect(
             trusted_fraction: trusted_fit,
         },
         coverage,
+        conditioning,
         non_finite,
     );
     tracing::info!(verdict = %report.verdict, rms = report.statistics.rms, mode, "inspected");

@@ -89,6 +89,10 @@ pub struct Report {
     pub tolerance_mm: f64,
     /// Registration summary.
     pub registration: Registration,
+    /// How well the registration pins each rigid degree of freedom.
+    pub conditioning: super::Conditioning,
+    /// What the verdict does not show but a reader should know (weakly pinned directions).
+    pub warnings: Vec<String>,
     /// cad_from_cloud, row-major 4×4.
     pub transform: [[f64; 4]; 4],
     /// Deviation statistics.
@@ -113,6 +117,7 @@ pub(super) fn build(
     params: &InspectParams,
     fit: Fit,
     coverage: Coverage,
+    conditioning: super::Conditioning,
     non_finite: usize,
 ) -> Report {
     let tol = params.tolerance;
@@ -148,6 +153,8 @@ pub(super) fn build(
             100.0 * coverage.minimum
         ));
     }
+    let (unpinned, warnings) = conditioning.findings(params.tolerance, params.init.is_some());
+    unmeasured.extend(unpinned);
     let datums: Vec<DatumResidual> = params
         .datums
         .iter()
@@ -196,6 +203,8 @@ pub(super) fn build(
             iterations: fit.iterations,
             trusted_fraction: fit.trusted_fraction,
         },
+        conditioning,
+        warnings,
         transform: std::array::from_fn(|i| std::array::from_fn(|j| m[(i, j)])),
         statistics,
         datums,

@@ -1,0 +1,159 @@
+//! How well a registration pins each rigid degree of freedom. The point-to-plane normal
+//! equations at the final pose (rotations about the points' centroid, scaled by their RMS
+//! radius so that every direction is in millimetres) have six eigen-directions; the mean
+//! squared normal component along each, the *strength* (1 for a translation along every
+//! normal, 0 for a motion the surface does not see), says how far a systematic deviation of
+//! one tolerance could move the fit along it: `tolerance / √strength`. A plane cannot pin its
+//! in-plane translations and the rotation about its normal, a cylinder its axis; a gently
+//! curved panel pins them weakly (a bulge can shift the fit along the surface). The report
+//! states each direction; one the data do not pin makes the part `not_measured` rather than a
+//! map at an arbitrary position.
+
+use nalgebra::{SymmetricEigen, Vector3, Vector6};
+use serde::Serialize;
+
+use crate::mesh::SignedDistance;
+use crate::register::accumulate;
+
+/// Strength below which a direction is not pinned (a tolerance-sized systematic deviation
+/// could move the fit 100 tolerances along it).
+pub const UNPINNED_STRENGTH: f64 = 1e-4;
+/// Slide, in tolerances, above which a pinned direction is reported as weak.
+pub const WEAK_SLIDE_TOLERANCES: f64 = 10.0;
+
+/// One eigen-direction of the fit.
+#[derive(Clone, Debug, Serialize)]
+pub struct Direction {
+    /// `translation` or `rotation` (its dominant part).
+    pub kind: String,
+    /// Unit axis in the CAD frame: the translation's direction, or the rotation's axis (through
+    /// `centre` of [`Conditioning`]).
+    pub axis: [f64; 3],
+    /// Mean squared normal component of the motion, 0 … 1 (rotations at the RMS radius).
+    pub strength: f64,
+    /// How far a systematic deviation of one tolerance could move the fit along it, mm (at
+    /// the RMS radius for a rotation); capped at 1e6.
+    pub slide_mm: f64,
+}
+
+/// The conditioning of a registration.
+#[derive(Clone, Debug, Serialize)]
+pub struct Conditioning {
+    /// Points the analysis used (on the CAD surface at the final pose).
+    pub points: usize,
+    /// Centroid of those points (CAD frame), the centre of the rotations.
+    pub centre: [f64; 3],
+    /// Their RMS distance from the centre, mm (the lever arm of the rotations).
+    pub radius_mm: f64,
+    /// The six directions, weakest first.
+    pub directions: Vec<Direction>,
+    /// Every direction has at least [`UNPINNED_STRENGTH`].
+    pub pinned: bool,
+}
+
+impl Conditioning {
+    /// Sentences for the directions the surface does not pin (first: reasons the part is not
+    /// measured) and those it pins weakly (second: warnings). With `prior` (the registration
+    /// started from a calibrated nominal pose, as in a cell) an unpinned direction is a
+    /// warning: its position along it is the prior's, not the data's.
+    pub fn findings(&self, tolerance: f64, prior: bool) -> (Vec<String>, Vec<String>) {
+        let mut unpinned = Vec::new();
+        let mut weak = Vec::new();
+        for d in &self.directions {
+            let what = match d.kind.as_str() {
+                "rotation" => format!(
+                    "rotation about ({:.2}, {:.2}, {:.2})",
+                    d.axis[0], d.axis[1], d.axis[2]
+                ),
+                _ => format!(
+                    "translation along ({:.2}, {:.2}, {:.2})",
+                    d.axis[0], d.axis[1], d.axis[2]
+                ),
+            };
+            if d.strength < UNPINNED_STRENGTH && prior {
+                weak.push(format!(
+                    "the measured surface does not pin the {what} (strength {:.1e}): the part's position along it is the initial pose's (the cell calibration's), not measured",
+                    d.strength
+                ));
+            } else if d.strength < UNPINNED_STRENGTH {
+                unpinned.push(format!(
+                    "the registration cannot pin the {what}: the measured surface does not constrain it (strength {:.1e}); add datums that fix it",
+                    d.strength
+                ));
+            } else if d.slide_mm > WEAK_SLIDE_TOLERANCES * tolerance {
+                weak.push(format!(
+                    "the {what} is weakly pinned: a systematic deviation of {tolerance} mm could move the fit {:.1} mm along it",
+                    d.slide_mm
+                ));
+            }
+        }
+        (unpinned, weak)
+    }
+}
+
+/// Analyse the fit of `points` (CAD frame, after registration); only points within `near` mm
+/// of the surface take part.
+pub fn analyse(
+    points: &[[f64; 3]],
+    cad: &SignedDistance,
+    near: f64,
+    tolerance: f64,
+) -> Conditioning {
+    let on: Vec<(Vector3<f64>, Vector3<f64>)> = points
+        .iter()
+        .filter_map(|p| {
+            let v = Vector3::from(*p);
+            let c = cad.query(&v)?;
+            (c.distance.abs() <= near && !c.beyond_boundary).then_some((v, c.normal))
+        })
+        .collect();
+    let n = on.len().max(1) as f64;
+    let centre = on.iter().fold(Vector3::zeros(), |a, (p, _)| a + p) / n;
+    let radius = (on
+        .iter()
+        .map(|(p, _)| (p - centre).norm_squared())
+        .sum::<f64>()
+        / n)
+        .sqrt()
+        .max(1e-9);
+    let eq = accumulate(&on, |(p, nrm)| {
+        let r = (p - centre).cross(nrm) / radius;
+        Some((Vector6::new(r.x, r.y, r.z, nrm.x, nrm.y, nrm.z), 0.0, 1.0))
+    });
+    let eig = SymmetricEigen::new(eq.ata / n);
+    let mut order: Vec<usize> = (0..6).collect();
+    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+    let directions: Vec<Direction> = order
+        .iter()
+        .map(|&i| {
+            let v = eig.eigenvectors.column(i);
+            let rot = Vector3::new(v[0], v[1], v[2]);
+            let tra = Vector3::new(v[3], v[4], v[5]);
+            let (kind, axis) = if rot.norm_squared() > tra.norm_squared() {
+                ("rotation", rot.normalize())
+            } else {
+                ("translation", tra.normalize())
+            };
+            let strength = eig.eigenvalues[i].max(0.0);
+            let slide = if strength > 0.0 {
+                (tolerance / strength.sqrt()).min(1e6)
+            } else {
+                1e6
+            };
+            Direction {
+                kind: kind.into(),
+                axis: axis.into(),
+                strength,
+                slide_mm: slide,
+            }
+        })
+        .collect();
+    let pinned = on.len() >= 6 && directions.iter().all(|d| d.strength >= UNPINNED_STRENGTH);
+    Conditioning {
+        points: on.len(),
+        centre: centre.into(),
+        radius_mm: radius,
+        directions,
+        pinned,
+    }
+}

@@ -196,9 +196,9 @@ pub fn inspect(
             mode,
             iterations,
             trusted_fraction: trusted_fit,
+            conditioning,
         },
         coverage,
-        conditioning,
         non_finite,
     );
     tracing::info!(verdict = %report.verdict, rms = report.statistics.rms, mode, "inspected");

@@ -73,6 +73,7 @@ pub(super) struct Fit<'a> {
     pub mode: &'a str,
     pub iterations: usize,
     pub trusted_fraction: f64,
+    pub conditioning: super::Conditioning,
 }
 
 /// The report.
@@ -117,7 +118,6 @@ pub(super) fn build(
     params: &InspectParams,
     fit: Fit,
     coverage: Coverage,
-    conditioning: super::Conditioning,
     non_finite: usize,
 ) -> Report {
     let tol = params.tolerance;
@@ -153,7 +153,9 @@ pub(super) fn build(
             100.0 * coverage.minimum
         ));
     }
-    let (unpinned, warnings) = conditioning.findings(params.tolerance, params.init.is_some());
+    let (unpinned, warnings) = fit
+        .conditioning
+        .findings(params.tolerance, params.init.is_some());
     unmeasured.extend(unpinned);
     let datums: Vec<DatumResidual> = params
         .datums
@@ -203,7 +205,7 @@ pub(super) fn build(
             iterations: fit.iterations,
             trusted_fraction: fit.trusted_fraction,
         },
-        conditioning,
+        conditioning: fit.conditioning,
         warnings,
         transform: std::array::from_fn(|i| std::array::from_fn(|j| m[(i, j)])),
         statistics,

@@ -10,14 +10,16 @@
 //! map at an arbitrary position.
 
 use nalgebra::{SymmetricEigen, Vector3, Vector6};
+use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::mesh::SignedDistance;
 use crate::register::accumulate;
 
 /// Strength below which a direction is not pinned (a tolerance-sized systematic deviation
-/// could move the fit 100 tolerances along it).
-pub const UNPINNED_STRENGTH: f64 = 1e-4;
+/// could move the fit more than 300 tolerances along it: a plane's in-plane motions, a
+/// cylinder's axis, a gentle quadric's slide along itself).
+pub const UNPINNED_STRENGTH: f64 = 1e-5;
 /// Slide, in tolerances, above which a pinned direction is reported as weak.
 pub const WEAK_SLIDE_TOLERANCES: f64 = 10.0;
 
@@ -100,7 +102,7 @@ pub fn analyse(
     tolerance: f64,
 ) -> Conditioning {
     let on: Vec<(Vector3<f64>, Vector3<f64>)> = points
-        .iter()
+        .par_iter()
         .filter_map(|p| {
             let v = Vector3::from(*p);
             let c = cad.query(&v)?;

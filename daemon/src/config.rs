@@ -231,11 +231,8 @@ fn exposure() -> f64 {
 /// Which kind of pair a sensor is.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Backend {
-    /// Simulated pair rendering `scene`.
-    Mock {
-        /// The scene file.
-        scene: PathBuf,
-    },
+    /// Simulated pair rendering its sensor's `scene`.
+    Mock,
     /// GigE Vision camera.
     Aravis,
     /// V4L2 camera.
@@ -446,14 +443,13 @@ impl CellConfig {
             }
             let scene = s.scene.as_deref().map(resolve);
             let backend = match s.backend.as_str() {
-                "mock" => Backend::Mock {
-                    scene: scene.clone().ok_or_else(|| {
-                        field(
-                            &f("scene"),
-                            "a mock pair needs the scene it simulates".into(),
-                        )
-                    })?,
-                },
+                "mock" if scene.is_none() => {
+                    return Err(field(
+                        &f("scene"),
+                        "a mock pair needs the scene it simulates".into(),
+                    ))
+                }
+                "mock" => Backend::Mock,
                 "aravis" => Backend::Aravis,
                 "v4l2" => Backend::V4l2,
                 "replay" => Backend::Replay {
@@ -553,6 +549,20 @@ impl CellConfig {
                     ))
                 }
                 (Some("hardware"), line) => {
+                    if let Some(l) = line {
+                        if l.is_empty()
+                            || l.len() > 64
+                            || !l.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+                        {
+                            return Err(field(
+                                &f("trigger_line"),
+                                format!(
+                                    "{:?} is not a camera line name such as Line0",
+                                    l.chars().take(64).collect::<String>()
+                                ),
+                            ));
+                        }
+                    }
                     if !hardware {
                         return Err(field(
                             &f("trigger"),

@@ -184,7 +184,7 @@ pub fn open(s: &SensorConfig, seed: u64) -> Result<Pair> {
         Option<FaultInjector>,
         &'static str,
     ) = match &s.backend {
-        Backend::Mock { .. } => {
+        Backend::Mock => {
             let sc = m
                 .scene
                 .clone()

@@ -8,10 +8,9 @@ mod common;
 
 use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
-use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use common::{ask, client, free_port, wait_end, Risd};
+use common::{ask, client, free_port, states, wait_end, Risd};
 
 use zenoh::Wait;
 
@@ -73,23 +72,7 @@ fn start_up_wildcards_rivals_and_retention() {
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
     let first = start(&config, &data, &endpoint, None);
     let session = client(&endpoint);
-    let (tx, states) = mpsc::channel();
-    let _sub = session
-        .declare_subscriber("ris/hard/scans/*/state")
-        .callback(move |s| {
-            let id = s
-                .key_expr()
-                .as_str()
-                .split('/')
-                .nth(3)
-                .unwrap_or_default()
-                .to_string();
-            if let Ok(v) = serde_json::from_slice(&s.payload().to_bytes()) {
-                let _ = tx.send((id, v));
-            }
-        })
-        .wait()
-        .expect("subscriber");
+    let (_sub, states) = states(&session, "hard");
 
     // While the pairs are prepared, a request gets an error reply that says so; no liveliness.
     let t = Instant::now();
@@ -259,23 +242,7 @@ fn an_unwritable_store_fails_every_scan_with_the_reason() {
     let mut risd = start(&config, &broken, &endpoint, None);
     risd.wait_ready(Duration::from_secs(60));
     let session = client(&endpoint);
-    let (tx, states) = mpsc::channel();
-    let _sub = session
-        .declare_subscriber("ris/tiny/scans/*/state")
-        .callback(move |s| {
-            let id = s
-                .key_expr()
-                .as_str()
-                .split('/')
-                .nth(3)
-                .unwrap_or_default()
-                .to_string();
-            if let Ok(v) = serde_json::from_slice(&s.payload().to_bytes()) {
-                let _ = tx.send((id, v));
-            }
-        })
-        .wait()
-        .expect("subscriber");
+    let (_sub, states) = states(&session, "tiny");
     std::thread::sleep(Duration::from_millis(200));
     for _ in 0..2 {
         let replies = ask(&session, "ris/tiny/scan", Some("{}"));

@@ -85,6 +85,10 @@ fn config_errors_name_the_field() {
         ),
         (&format!("{ok}trigger = \"hardware\"\n"), "sensor[0].trigger"),
         (&format!("{ok}trigger_line = \"Line1\"\n"), "sensor[0].trigger_line"),
+        (
+            &format!("{aravis}projector_monitor = 1\ntrigger = \"hardware\"\ntrigger_line = \"\"\n"),
+            "sensor[0].trigger_line",
+        ),
         (&format!("{ok}device = \"/dev/video0\"\n"), "sensor[0].device"),
         (&format!("{ok}gain_db = -3.0\n"), "sensor[0].gain_db"),
         (&format!("{ok}settle_ms = 1e9\n"), "sensor[0].settle_ms"),

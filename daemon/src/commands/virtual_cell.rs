@@ -308,6 +308,13 @@ pub fn start_rig(rig: &Path, ris: &Path, display: Option<&str>) -> Result<Virtua
     }
     let width: u32 = sizes.iter().map(|s| s.0).sum();
     let height: u32 = sizes.iter().map(|s| s.1).max().unwrap_or(1);
+    // X11 coordinates are 16-bit: the monitors side by side must fit.
+    if width > i16::MAX as u32 || height > i16::MAX as u32 {
+        bail!(
+            "{}: the projectors side by side are {width}x{height}; an X screen holds at most 32767x32767",
+            rig.display()
+        );
+    }
     let display = match display {
         Some(d) => d.to_string(),
         None => {

@@ -145,4 +145,28 @@ fn a_scan_through_the_gige_camera_and_the_projector_window_equals_the_mock_scan(
     let (a, b) = (cloud(&scene, &hw), cloud(&scene, &mock));
     assert!(a.len() > 5_000, "{} points", a.len());
     assert_eq!(a, b, "the clouds differ");
+
+    // The X server ends under the open window: the projector reports it (Xlib's default would
+    // exit the process from the display thread), and this process goes on to pass.
+    drop(x);
+    let t = std::time::Instant::now();
+    let lost = loop {
+        match optics.show(0) {
+            Err(e) => break e,
+            Ok(_) => {
+                assert!(
+                    t.elapsed() < Duration::from_secs(10),
+                    "the window kept presenting after its X server ended"
+                );
+                std::thread::sleep(Duration::from_millis(50));
+            }
+        }
+    };
+    assert_eq!(lost.kind, ris_drivers::ErrorKind::Disconnected, "{lost}");
+    assert!(lost.to_string().contains("X server"), "{lost}");
+    assert!(
+        t.elapsed() < Duration::from_secs(5),
+        "the loss took {:?} to surface",
+        t.elapsed()
+    );
 }

@@ -5,6 +5,8 @@
 //! presented. Behind the cargo feature `window` (winit + wgpu).
 
 #[cfg(feature = "window")]
+mod connection;
+#[cfg(feature = "window")]
 pub mod screen;
 #[cfg(feature = "window")]
 mod window;

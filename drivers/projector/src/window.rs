@@ -73,16 +73,33 @@ fn error(kind: ErrorKind, device: &str, message: impl Into<String>) -> DriverErr
     DriverError::new(kind, device, message)
 }
 
+/// The error of every projector once the X connection has broken.
+fn lost(device: &str) -> DriverError {
+    error(
+        ErrorKind::Disconnected,
+        device,
+        "the connection to the X server broke; projector windows come back when risd restarts",
+    )
+}
+
 /// The process's display thread: winit allows one event loop per process, so every projector
 /// window of a cell lives on this one thread, started by the first window opened.
 fn display(device: &str) -> Result<EventLoopProxy<Command>> {
     static DISPLAY: Mutex<Option<std::result::Result<EventLoopProxy<Command>, String>>> =
         Mutex::new(None);
     let mut slot = DISPLAY.lock().unwrap_or_else(|e| e.into_inner());
+    if crate::connection::lost() {
+        return Err(lost(device));
+    }
     if let Some(started) = slot.as_ref() {
         return started
             .clone()
             .map_err(|e| error(ErrorKind::Unsupported, device, e));
+    }
+    if let Err(e) = crate::connection::guard() {
+        let e = format!("no display: {e}");
+        *slot = Some(Err(e.clone()));
+        return Err(error(ErrorKind::Unsupported, device, e));
     }
     let (proxy_tx, proxy_rx) = mpsc::channel();
     let spawned = std::thread::Builder::new()
@@ -164,6 +181,9 @@ impl WindowProjector {
         what: &str,
         timeout: Duration,
     ) -> Result<T> {
+        if crate::connection::lost() {
+            return Err(lost(&self.info.id));
+        }
         let (tx, rx) = mpsc::channel();
         self.proxy.send_event(make(tx)).map_err(|_| {
             error(
@@ -172,13 +192,32 @@ impl WindowProjector {
                 "the display thread has ended",
             )
         })?;
-        rx.recv_timeout(timeout).map_err(|_| {
-            error(
-                ErrorKind::Timeout,
-                &self.info.id,
-                format!("{what} did not finish within {} s", timeout.as_secs()),
-            )
-        })?
+        // Waited in slices, so that a broken X connection (which parks the display thread)
+        // fails the command at once rather than after the timeout.
+        let deadline = std::time::Instant::now() + timeout;
+        loop {
+            match rx.recv_timeout(Duration::from_millis(50)) {
+                Ok(result) => return result,
+                Err(mpsc::RecvTimeoutError::Disconnected) => {
+                    return Err(error(
+                        ErrorKind::Disconnected,
+                        &self.info.id,
+                        format!("the display thread dropped the request ({what})"),
+                    ))
+                }
+                Err(mpsc::RecvTimeoutError::Timeout) => {}
+            }
+            if crate::connection::lost() {
+                return Err(lost(&self.info.id));
+            }
+            if std::time::Instant::now() >= deadline {
+                return Err(error(
+                    ErrorKind::Timeout,
+                    &self.info.id,
+                    format!("{what} did not finish within {} s", timeout.as_secs()),
+                ));
+            }
+        }
     }
 }
 

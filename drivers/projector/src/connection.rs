@@ -21,8 +21,6 @@ pub(crate) fn guard() -> Result<(), String> {
     let xlib = x11_dl::xlib::Xlib::open().map_err(|e| format!("loading Xlib: {e}"))?;
     // SAFETY: `on_io_error` has the signature Xlib expects and never returns.
     unsafe { (xlib.XSetIOErrorHandler)(Some(on_io_error)) };
-    // The library stays loaded for winit's own use; keep this handle's functions valid too.
-    std::mem::forget(xlib);
     Ok(())
 }
 

@@ -107,6 +107,7 @@ fn procam_chessboard_is_planar_with_subpixel_decoding() {
         reference: None,
         residual: None,
         to_common: None,
+        volume: None,
     };
     let sensor = load_sensor(tmp.path(), &file);
     let capture = CaptureSet::load(tmp.path()).expect("capture");
@@ -235,6 +236,7 @@ fn slstudio_skull_matches_reference_cloud() {
         reference: None,
         residual: None,
         to_common: None,
+        volume: None,
     };
     let sensor = load_sensor(tmp.path(), &file);
     let capture = CaptureSet::load(tmp.path()).expect("capture");

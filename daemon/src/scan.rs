@@ -81,6 +81,9 @@ pub struct SensorTiming {
     pub stages: StageSeconds,
     /// Points reconstructed.
     pub points: usize,
+    /// Of those, points outside the sensor's calibrated volume: flagged `outside_volume` in
+    /// the clouds and left out of the inspection.
+    pub outside_volume: usize,
     /// Slides projected (retries and every step of an adaptive scan included).
     pub frames: u64,
     /// Seconds presenting slides (Gray scans).
@@ -335,7 +338,11 @@ fn scan_into(
         })
         .collect();
     let mut last_frame = 0.0f64;
-    type Computed = (Merger, Vec<(usize, usize, (f64, f64), StageSeconds)>);
+    // Per sensor: index, (points, outside the calibrated volume), compute span, stages.
+    type Computed = (
+        Merger,
+        Vec<(usize, (usize, usize), (f64, f64), StageSeconds)>,
+    );
     let (merged, done, merge_time, clouds) = std::thread::scope(|scope| {
         let recs = &recs;
         // Sensor clouds are written (and synced) on their own thread, off the critical path:
@@ -376,7 +383,7 @@ fn scan_into(
                     reconstruct: c2 - c1,
                     merge: c3 - c2,
                 };
-                done.push((i, cloud.len(), (c0, c3), stages));
+                done.push((i, (cloud.len(), cloud.outside_count()), (c0, c3), stages));
                 if wtx.send((name.clone(), cloud)).is_err() {
                     // The writer stopped on an error; it is reported when joined.
                     break;
@@ -462,10 +469,19 @@ fn scan_into(
             (m, d, t, clouds)
         })
     })?;
-    for (i, points, compute, stages) in done {
+    for (i, (points, outside), compute, stages) in done {
         timings[i].compute = compute;
         timings[i].stages = stages;
         timings[i].points = points;
+        timings[i].outside_volume = outside;
+        if outside > 0 {
+            tracing::warn!(
+                sensor = %timings[i].sensor,
+                outside,
+                points,
+                "points outside the sensor's calibrated volume"
+            );
+        }
     }
     let inspection = match options.part {
         Some(part) => Some(inspect_part(part, &merged, dir, &secs, state)?),
@@ -606,8 +622,17 @@ fn inspect_part(
         part: part.id.clone(),
     });
     let i0 = secs();
-    let points: Vec<[f64; 3]> = merged.points.iter().map(|p| p.map(f64::from)).collect();
-    let r = inspect(
+    // Points outside a sensor's calibrated volume are not trusted to measure deviations.
+    let flagged = merged.outside.len() == merged.points.len();
+    let points: Vec<[f64; 3]> = merged
+        .points
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| !(flagged && merged.outside[*i]))
+        .map(|(_, p)| p.map(f64::from))
+        .collect();
+    let outside = merged.len() - points.len();
+    let mut r = inspect(
         &points,
         &part.cad,
         &InspectParams {
@@ -619,6 +644,12 @@ fn inspect_part(
         },
     )
     .with_context(|| format!("inspecting part {}", part.id))?;
+    if outside > 0 {
+        r.report.warnings.push(format!(
+            "{outside} of {} merged points lie outside their sensor's calibrated volume and were not inspected",
+            merged.len()
+        ));
+    }
     write_deviation_ply(&dir.join("deviation.ply"), &r.points, &r.deviations)?;
     write_deviation_png(
         &dir.join("deviation.png"),

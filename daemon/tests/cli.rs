@@ -859,6 +859,48 @@ fn calibrate_sensor_from_a_rendered_session_and_refuse_a_thin_one() {
         .as_ref()
         .is_some_and(|r| r.join("capture.toml").is_file()));
     assert!(sensor.residual.as_ref().is_some_and(|r| r.is_file()));
+    // The file states its calibrated volume; the table around the board lies outside it, and
+    // `ris reconstruct` says how many points that is, flags them, or leaves them out.
+    let volume = sensor.volume.expect("[volume]");
+    assert_eq!(volume.heights[0], 0.0);
+    let cloud_path = dir.path().join("layer0.ply");
+    let o = ris(&[
+        "reconstruct",
+        "--sensor",
+        s(&out),
+        s(&session.join("layer0")),
+        "--out",
+        s(&cloud_path),
+    ]);
+    let line = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(o.status.success(), "{line}{}", stderr(&o));
+    let cloud = ris_core::cloud::PointCloud::read_ply(&cloud_path).expect("cloud");
+    let outside = cloud.outside_count();
+    assert!(
+        line.contains(&format!("{outside} outside the calibrated volume")),
+        "{line}"
+    );
+    assert!(
+        outside > 1000 && outside + 10_000 < cloud.len(),
+        "{outside} of {}",
+        cloud.len()
+    );
+    for (p, o) in cloud.points.iter().zip(&cloud.outside) {
+        assert_eq!(*o, !volume.contains(p), "{p:?}");
+    }
+    let o = ris(&[
+        "reconstruct",
+        "--sensor",
+        s(&out),
+        s(&session.join("layer0")),
+        "--drop-outside",
+        "--out",
+        s(&cloud_path),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let kept = ris_core::cloud::PointCloud::read_ply(&cloud_path).expect("cloud");
+    assert_eq!(kept.len(), cloud.len() - outside);
+    assert_eq!(kept.outside_count(), 0);
     let report: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(dir.path().join("cal/sensor.report.json")).expect("report"),
     )

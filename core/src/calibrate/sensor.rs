@@ -23,7 +23,8 @@ use crate::io::{npy, relative_path};
 use crate::pattern::Pattern;
 use crate::sensor::reference::{PlaneCodeMap, PlaneSample};
 use crate::sensor::{
-    ProjectorSection, RayTable, Reconstructor, ReferenceSection, ResidualSection, SensorFile,
+    CalibratedVolume, ProjectorSection, RayTable, Reconstructor, ReferenceSection, ResidualSection,
+    SensorFile,
 };
 use crate::{Error, Result};
 
@@ -210,6 +211,8 @@ pub struct SensorCalibration {
     pub reference: std::path::PathBuf,
     /// Valid area of the reference plane `[x_min, x_max, y_min, y_max]`, mm.
     pub extent: [f64; 4],
+    /// The box the session measured: the extent over the heights of the layers kept.
+    pub volume: CalibratedVolume,
     /// Residual coefficients A, B, C per pixel (H × W × 3).
     pub residual: Vec<f32>,
     /// The report.
@@ -259,6 +262,7 @@ impl SensorCalibration {
                 file: residual_name,
             }),
             to_common: None,
+            volume: Some(self.volume.section()),
         };
         file.save(out)?;
         Ok(file)
@@ -674,6 +678,17 @@ pub fn calibrate_sensor_with(
         projector_center: op,
         projector,
         reference: session.layers[0].dir.clone(),
+        volume: CalibratedVolume {
+            extent,
+            heights: session
+                .layers
+                .iter()
+                .zip(&report.layers)
+                .filter(|(_, r)| r.excluded.is_none())
+                .fold([f64::INFINITY, f64::NEG_INFINITY], |h, (l, _)| {
+                    [h[0].min(l.height), h[1].max(l.height)]
+                }),
+        },
         extent,
         residual,
         report,
@@ -688,6 +703,9 @@ fn gate(name: &str, value: f64, limit: f64) -> Gate {
         pass: value.is_finite() && value <= limit,
     }
 }
+
+/// Normalized image radius (tan of the field angle) the corners must reach for k2 to be fitted.
+const K2_REACH: f64 = 0.35;
 
 /// Camera by normalised DLT on non-coplanar points (Eq. 3.25), decomposed into K [R | t] by RQ,
 /// then refined with Brown distortion by Levenberg–Marquardt.
@@ -807,6 +825,17 @@ pub(crate) fn fit_camera(
         return Ok(unpack(&x));
     }
     // k3 stays 0: one board pose rarely reaches the image corners, where k3 would be decided.
+    // k2 is only fitted when the corners reach far enough from the image centre to tell it from
+    // k1; otherwise it is free to take any value that suits the centre and bends every ray
+    // beyond the board (a 9x7 board in the middle of the field gave k2 = 0.28 for a true 0.02).
+    let reach = obs
+        .iter()
+        .filter_map(|(p, _)| {
+            let c = rot * p + t;
+            (c.z > 0.0).then(|| (c.x / c.z).hypot(c.y / c.z))
+        })
+        .fold(0.0, f64::max);
+    let free_k2 = reach >= K2_REACH;
     let x0 = vec![
         k[(0, 0)],
         k[(1, 1)],
@@ -827,7 +856,7 @@ pub(crate) fn fit_camera(
         width,
         height,
         k: Mat3::new(x[0], 0.0, x[2], 0.0, x[1], x[3], 0.0, 0.0, 1.0),
-        dist: Distortion::from_array([x[4], x[5], x[6], x[7], 0.0]),
+        dist: Distortion::from_array([x[4], if free_k2 { x[5] } else { 0.0 }, x[6], x[7], 0.0]),
         r: Rotation3::from_scaled_axis(Vec3::new(x[8], x[9], x[10])).into_inner(),
         t: Vec3::new(x[11], x[12], x[13]),
     };
@@ -1105,8 +1134,13 @@ fn projector_center(
 
 /// Per-pixel quadratic e = A m² + B m + C (Eq. 3.28) from per-layer maps of `[e, m]` (height
 /// error, mm, NaN where unmeasured; reference-plane shift m, mm), each map smoothed by a NaN-aware
-/// Gaussian of `sigma` pixels first. Pixels measured on fewer than four layers take the nearest
-/// fitted pixel's coefficients. Returns A, B, C interleaved, `w × h × 3`.
+/// Gaussian of `sigma` pixels first. Returns A, B, C interleaved, `w × h × 3`.
+///
+/// A point on the reference plane (m = 0) is reconstructed exactly by construction, so C is
+/// only fitted where the pixel's layers reach down to the plane; elsewhere the quadratic is
+/// pinned through e(0) = 0 rather than extrapolated to it. Pixels measured on fewer than four
+/// layers take a smooth (affine in u, v) fit of the measured pixels' A and B, not a copy of an
+/// edge pixel's noise.
 pub fn fit_height_residual(errors: &[Vec<[f32; 2]>], w: usize, h: usize, sigma: f32) -> Vec<f32> {
     let smoothed: Vec<Vec<[f32; 2]>> = errors
         .iter()
@@ -1159,28 +1193,55 @@ pub fn fit_height_residual(errors: &[Vec<[f32; 2]>], w: usize, h: usize, sigma: 
         if n < 4 || mhi - mlo < 1e-3 {
             return;
         }
-        let a = Mat3::from_fn(|r, c| ata[r][c]);
-        if let Some(x) = a.try_inverse().map(|ai| ai * Vec3::from(atb)) {
-            if x.iter().all(|v| v.is_finite()) {
-                *out = [x[0] as f32, x[1] as f32, x[2] as f32];
+        if mlo <= 0.1 * mhi {
+            let a = Mat3::from_fn(|r, c| ata[r][c]);
+            if let Some(x) = a.try_inverse().map(|ai| ai * Vec3::from(atb)) {
+                if x.iter().all(|v| v.is_finite()) {
+                    *out = [x[0] as f32, x[1] as f32, x[2] as f32];
+                }
+            }
+        } else {
+            let a = nalgebra::Matrix2::new(ata[0][0], ata[0][1], ata[1][0], ata[1][1]);
+            let b = nalgebra::Vector2::new(atb[0], atb[1]);
+            if let Some(x) = a.try_inverse().map(|ai| ai * b) {
+                if x.iter().all(|v| v.is_finite()) {
+                    *out = [x[0] as f32, x[1] as f32, 0.0];
+                }
             }
         }
     });
-    let valid: Vec<bool> = coef.iter().map(|c| c[0].is_finite()).collect();
-    let near = crate::mask::field::nearest_valid(&valid, w, (w + h) as u32);
+    let fill = affine_fill(&coef, w);
     let mut out = Vec::with_capacity(3 * w * h);
     for (i, c) in coef.iter().enumerate() {
-        let v = if c[0].is_finite() {
-            *c
+        if c[0].is_finite() {
+            out.extend(*c);
         } else {
-            match near[i] {
-                Some(j) => coef[j as usize],
-                None => [0.0; 3],
-            }
-        };
-        out.extend(v);
+            let (u, v) = ((i % w) as f64, (i / w) as f64);
+            let at = |k: usize| (fill[k][0] * u + fill[k][1] * v + fill[k][2]) as f32;
+            out.extend([at(0), at(1), 0.0]);
+        }
     }
     out
+}
+
+/// Least-squares planes `A(u, v)`, `B(u, v)` through the fitted pixels' coefficients (zero
+/// when too few pixels were fitted).
+fn affine_fill(coef: &[[f32; 3]], w: usize) -> [[f64; 3]; 2] {
+    let mut ata = Mat3::zeros();
+    let mut atb = [Vec3::zeros(); 2];
+    for (i, c) in coef.iter().enumerate().filter(|(_, c)| c[0].is_finite()) {
+        let x = Vec3::new((i % w) as f64, (i / w) as f64, 1.0);
+        ata += x * x.transpose();
+        atb[0] += x * f64::from(c[0]);
+        atb[1] += x * f64::from(c[1]);
+    }
+    match ata.try_inverse() {
+        Some(ai) if ata[(2, 2)] >= 100.0 => {
+            let (a, b) = (ai * atb[0], ai * atb[1]);
+            [[a.x, a.y, a.z], [b.x, b.y, b.z]]
+        }
+        _ => [[0.0; 3]; 2],
+    }
 }
 
 #[cfg(test)]

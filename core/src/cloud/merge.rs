@@ -34,6 +34,8 @@ pub struct Merger {
     owner: Vec<usize>,
     stats: MergeStats,
     radius: f64,
+    /// Whether any input carried calibrated-volume flags.
+    flagged: bool,
 }
 
 impl Merger {
@@ -44,6 +46,7 @@ impl Merger {
             owner: Vec::new(),
             stats: MergeStats::default(),
             radius,
+            flagged: false,
         }
     }
 
@@ -94,6 +97,8 @@ impl Merger {
                 }
             })
             .collect();
+        let outside = |i: usize| cloud.outside.get(i).copied().unwrap_or(false);
+        self.flagged |= !cloud.outside.is_empty();
         let mut replaced = vec![false; merged.len()];
         for (i, p) in pts.iter().enumerate() {
             let conf = cloud.confidence.get(i).copied().unwrap_or(1.0);
@@ -105,6 +110,7 @@ impl Merger {
                         stats.kept[owner[j]] -= 1;
                         merged.points[j] = point;
                         merged.confidence[j] = conf;
+                        merged.outside[j] = outside(i);
                         owner[j] = s;
                         replaced[j] = true;
                         stats.kept[s] += 1;
@@ -116,6 +122,7 @@ impl Merger {
                 None => {
                     merged.points.push(point);
                     merged.confidence.push(conf);
+                    merged.outside.push(outside(i));
                     owner.push(s);
                     stats.kept[s] += 1;
                 }
@@ -124,7 +131,10 @@ impl Merger {
     }
 
     /// The merged cloud and the per-input figures.
-    pub fn finish(self) -> (PointCloud, MergeStats) {
+    pub fn finish(mut self) -> (PointCloud, MergeStats) {
+        if !self.flagged {
+            self.merged.outside.clear();
+        }
         (self.merged, self.stats)
     }
 }

@@ -19,6 +19,9 @@ pub struct PointCloud {
     pub confidence: Vec<f32>,
     /// Row-major camera pixel index per point (empty when not organised).
     pub pixels: Vec<u32>,
+    /// Per point, whether it lies outside its sensor's calibrated volume (empty when the
+    /// sensor states no volume); written to PLY as `outside_volume`.
+    pub outside: Vec<bool>,
 }
 
 impl PointCloud {
@@ -29,6 +32,7 @@ impl PointCloud {
             points: Vec::with_capacity(n),
             confidence: Vec::with_capacity(n),
             pixels: Vec::with_capacity(n),
+            outside: Vec::new(),
         };
         for (i, p) in dense.iter().enumerate() {
             if p[0].is_finite() {
@@ -45,32 +49,46 @@ impl PointCloud {
     /// Drop points with a NaN or infinite coordinate (and their confidence and pixel);
     /// returns how many were dropped.
     pub fn retain_finite(&mut self) -> usize {
-        let before = self.points.len();
         let keep: Vec<bool> = self
             .points
             .iter()
             .map(|p| p.iter().all(|c| c.is_finite()))
             .collect();
-        let mut k = 0;
-        self.points.retain(|_| {
-            k += 1;
-            keep[k - 1]
-        });
-        if self.pixels.len() == before {
-            let mut k = 0;
-            self.pixels.retain(|_| {
-                k += 1;
-                keep[k - 1]
-            });
+        self.retain(&keep)
+    }
+
+    /// Keep the points whose entry in `keep` is true, with their per-point attributes;
+    /// returns how many were dropped.
+    fn retain(&mut self, keep: &[bool]) -> usize {
+        fn by<T>(v: &mut Vec<T>, keep: &[bool]) {
+            if v.len() == keep.len() {
+                let mut k = 0;
+                v.retain(|_| {
+                    k += 1;
+                    keep[k - 1]
+                });
+            }
         }
-        if self.confidence.len() == before {
-            let mut k = 0;
-            self.confidence.retain(|_| {
-                k += 1;
-                keep[k - 1]
-            });
-        }
+        let before = self.points.len();
+        by(&mut self.points, keep);
+        by(&mut self.confidence, keep);
+        by(&mut self.pixels, keep);
+        by(&mut self.outside, keep);
         before - self.points.len()
+    }
+
+    /// Points flagged outside the calibrated volume.
+    pub fn outside_count(&self) -> usize {
+        self.outside.iter().filter(|o| **o).count()
+    }
+
+    /// Leave out the points flagged outside the calibrated volume; returns how many.
+    pub fn drop_outside(&mut self) -> usize {
+        if self.outside.len() != self.points.len() {
+            return 0;
+        }
+        let keep: Vec<bool> = self.outside.iter().map(|o| !o).collect();
+        self.retain(&keep)
     }
 
     /// Number of points.
@@ -83,7 +101,8 @@ impl PointCloud {
         self.points.is_empty()
     }
 
-    /// Write a binary little-endian PLY (x y z confidence, float32), atomically.
+    /// Write a binary little-endian PLY (x y z confidence, float32; `outside_volume` uchar
+    /// when the cloud is flagged), atomically.
     pub fn write_ply(&self, path: &Path) -> Result<()> {
         write_atomic(path, &self.to_ply())
     }
@@ -91,16 +110,25 @@ impl PointCloud {
     /// The binary little-endian PLY of [`PointCloud::write_ply`], in memory (what risd
     /// publishes).
     pub fn to_ply(&self) -> Vec<u8> {
+        let flagged = self.outside.len() == self.points.len() && !self.points.is_empty();
         let header = format!(
-            "ply\nformat binary_little_endian 1.0\ncomment written by RIS {}\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nproperty float confidence\nend_header\n",
+            "ply\nformat binary_little_endian 1.0\ncomment written by RIS {}\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nproperty float confidence\n{}end_header\n",
             env!("CARGO_PKG_VERSION"),
-            self.points.len()
+            self.points.len(),
+            if flagged {
+                "property uchar outside_volume\n"
+            } else {
+                ""
+            }
         );
-        let mut buf = Vec::with_capacity(header.len() + self.points.len() * 16);
+        let mut buf = Vec::with_capacity(header.len() + self.points.len() * 17);
         buf.extend_from_slice(header.as_bytes());
-        for (p, c) in self.points.iter().zip(&self.confidence) {
+        for (i, (p, c)) in self.points.iter().zip(&self.confidence).enumerate() {
             for v in [p[0], p[1], p[2], *c] {
                 buf.extend_from_slice(&v.to_le_bytes());
+            }
+            if flagged {
+                buf.push(u8::from(self.outside[i]));
             }
         }
         buf
@@ -209,6 +237,7 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
         _ => return Err("vertex has no x, y, z properties".into()),
     };
     let ic = idx("confidence");
+    let io = idx("outside_volume");
     let body = &bytes[end..];
     // The header's count is checked against the bytes that follow before anything is
     // allocated: an ASCII vertex takes at least one character and one separator per property.
@@ -229,6 +258,7 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
         points: Vec::with_capacity(count),
         confidence: Vec::with_capacity(count),
         pixels: Vec::new(),
+        outside: Vec::new(),
     };
     let mut vals = vec![0f64; props.len()];
     match enc {
@@ -247,6 +277,9 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
                     .points
                     .push([vals[ix] as f32, vals[iy] as f32, vals[iz] as f32]);
                 cloud.confidence.push(ic.map_or(1.0, |c| vals[c] as f32));
+                if let Some(o) = io {
+                    cloud.outside.push(vals[o] != 0.0);
+                }
             }
         }
         _ => {
@@ -267,6 +300,9 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
                     .points
                     .push([vals[ix] as f32, vals[iy] as f32, vals[iz] as f32]);
                 cloud.confidence.push(ic.map_or(1.0, |c| vals[c] as f32));
+                if let Some(o) = io {
+                    cloud.outside.push(vals[o] != 0.0);
+                }
             }
         }
     }
@@ -291,6 +327,7 @@ mod tests {
             points: vec![[1.0, 2.0, 3.0], [-4.5, 0.25, 1e3]],
             confidence: vec![0.5, 1.0],
             pixels: vec![],
+            outside: vec![false, true],
         };
         let p = dir.path().join("a.ply");
         cloud.write_ply(&p).expect("write");

@@ -6,6 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::geometry::{rows_of, Distortion, Mat3, Matrix4, Pinhole, Vec3};
 use crate::io::{read_toml, write_toml};
+use crate::sensor::volume::{CalibratedVolume, VolumeSection};
 use crate::{Error, Result};
 
 /// `[camera]` of a sensor file.
@@ -98,6 +99,9 @@ pub struct SensorFile {
     /// Sensor → cell transform.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub to_common: Option<ToCommonSection>,
+    /// Where the calibration session measured (points outside are flagged).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub volume: Option<VolumeSection>,
 }
 
 /// A validated sensor description with paths resolved against the file's directory.
@@ -119,6 +123,8 @@ pub struct Sensor {
     pub residual: Option<PathBuf>,
     /// Sensor → cell transform.
     pub to_common: Option<Matrix4<f64>>,
+    /// The calibrated volume, when the file states it.
+    pub volume: Option<CalibratedVolume>,
 }
 
 impl Sensor {
@@ -221,6 +227,11 @@ impl Sensor {
             reference_extent,
             residual: f.residual.as_ref().map(|r| base.join(&r.file)),
             to_common,
+            volume: f
+                .volume
+                .as_ref()
+                .map(|v| CalibratedVolume::from_section(v, ctx))
+                .transpose()?,
         })
     }
 }

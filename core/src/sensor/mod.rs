@@ -6,6 +6,7 @@ mod file;
 mod parallax;
 mod rays;
 pub mod reference;
+mod volume;
 
 pub use classical::Classical;
 pub use file::{
@@ -14,6 +15,7 @@ pub use file::{
 };
 pub use parallax::{parallel_height, Parallax, ParallaxPoint};
 pub use rays::RayTable;
+pub use volume::{CalibratedVolume, VolumeSection};
 
 use rayon::prelude::*;
 
@@ -54,6 +56,8 @@ pub struct Reconstructor {
     model: Model,
     /// Sensor → cell transform, if the sensor file has one.
     pub to_common: Option<Matrix4<f64>>,
+    /// Where the sensor was calibrated; reconstructed points outside it are flagged.
+    pub volume: Option<CalibratedVolume>,
 }
 
 impl Reconstructor {
@@ -124,6 +128,7 @@ impl Reconstructor {
             rays,
             model,
             to_common: sensor.to_common,
+            volume: sensor.volume,
         })
     }
 
@@ -156,6 +161,7 @@ impl Reconstructor {
                 residual: None,
             },
             to_common: None,
+            volume: None,
         })
     }
 
@@ -166,6 +172,7 @@ impl Reconstructor {
             rays: RayTable::new(camera),
             model: Model::Classical(Classical::new(camera, projector)),
             to_common: None,
+            volume: None,
         }
     }
 
@@ -240,7 +247,15 @@ impl Reconstructor {
                 });
             }
         }
-        Ok(PointCloud::from_dense(&dense, &decoded.confidence))
+        let mut cloud = PointCloud::from_dense(&dense, &decoded.confidence);
+        if let Some(volume) = &self.volume {
+            cloud.outside = cloud
+                .points
+                .par_iter()
+                .map(|p| !volume.contains(p))
+                .collect();
+        }
+        Ok(cloud)
     }
 }
 

@@ -23,6 +23,9 @@ pub struct PlaneCodeMap {
     h: [f64; 5],
     degree: usize,
     poly: Vec<f64>,
+    /// Bounding box of the samples in normalized coordinates, `[x_lo, x_hi, y_lo, y_hi]`: the
+    /// polynomial correction is only known there and is held at its edge beyond it.
+    domain: [f64; 4],
     /// RMS of the fit residual, projector pixels.
     pub rms: f64,
     /// Samples kept after outlier rejection.
@@ -65,10 +68,23 @@ impl PlaneCodeMap {
             .map(|s| (s.x - cx).abs().max((s.y - cy).abs()))
             .fold(0.0, f64::max)
             .max(1e-9);
+        let domain = samples.iter().fold(
+            [
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+            ],
+            |d, s| {
+                let (x, y) = ((s.x - cx) / scale, (s.y - cy) / scale);
+                [d[0].min(x), d[1].max(x), d[2].min(y), d[3].max(y)]
+            },
+        );
         let mut map = PlaneCodeMap {
             cx,
             cy,
             scale,
+            domain,
             h: [0.0; 5],
             degree,
             poly: vec![0.0; nt],
@@ -110,7 +126,9 @@ impl PlaneCodeMap {
         Ok(map)
     }
 
-    /// φ(X, Y) with its gradient (∂φ/∂X, ∂φ/∂Y).
+    /// φ(X, Y) with its gradient (∂φ/∂X, ∂φ/∂Y). Beyond the sampled area the projective part
+    /// (exact for a pinhole projector) extrapolates and the polynomial correction is held at
+    /// its value on the area's edge, so that a degree-5 fit cannot swing outside its data.
     #[inline]
     pub fn eval(&self, x: f64, y: f64) -> (f64, f64, f64) {
         let (xn, yn) = ((x - self.cx) / self.scale, (y - self.cy) / self.scale);
@@ -120,8 +138,23 @@ impl PlaneCodeMap {
         let rat = num / den;
         let drx = (h[0] - rat * h[3]) / den;
         let dry = (h[1] - rat * h[4]) / den;
-        let (p, px, py) = self.poly_eval(xn, yn);
+        let d = &self.domain;
+        let (xc, yc) = (xn.clamp(d[0], d[1]), yn.clamp(d[2], d[3]));
+        let (p, mut px, mut py) = self.poly_eval(xc, yc);
+        if xc != xn {
+            px = 0.0;
+        }
+        if yc != yn {
+            py = 0.0;
+        }
         (rat + p, (drx + px) / self.scale, (dry + py) / self.scale)
+    }
+
+    /// Whether the plane point (X, Y) lies in the area the map was fitted on.
+    pub fn covers(&self, x: f64, y: f64) -> bool {
+        let (xn, yn) = ((x - self.cx) / self.scale, (y - self.cy) / self.scale);
+        let d = &self.domain;
+        (d[0]..=d[1]).contains(&xn) && (d[2]..=d[3]).contains(&yn)
     }
 
     #[inline]

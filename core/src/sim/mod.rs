@@ -218,6 +218,7 @@ pub fn sensor_file(scene: &Scene) -> SensorFile {
         }),
         residual: None,
         to_common: None,
+        volume: None,
     }
 }
 

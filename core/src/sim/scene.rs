@@ -320,6 +320,7 @@ impl Scene {
             reference: None,
             residual: None,
             to_common: None,
+            volume: None,
         };
         let s = crate::sensor::Sensor::from_file(&sensor, base, ctx)?;
         let projector = s

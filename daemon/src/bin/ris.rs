@@ -219,6 +219,10 @@ enum Command {
         /// Sensor model (auto: parallax when the sensor has a reference).
         #[arg(long, value_enum, default_value_t = Model::Auto)]
         model: Model,
+        /// Leave out the points outside the sensor's calibrated volume (default: keep them,
+        /// flagged `outside_volume` in the PLY).
+        #[arg(long)]
+        drop_outside: bool,
         #[command(flatten)]
         decode: DecodeArgs,
     },
@@ -474,6 +478,7 @@ fn main() -> Result<()> {
             capture,
             out,
             model,
+            drop_outside,
             decode,
         } => {
             let model = match model {
@@ -481,7 +486,14 @@ fn main() -> Result<()> {
                 Model::Parallax => ModelChoice::Parallax,
                 Model::Classical => ModelChoice::Classical,
             };
-            commands::reconstruct::run(&sensor, &capture, model, &decode.params(), &out)?;
+            commands::reconstruct::run(
+                &sensor,
+                &capture,
+                model,
+                &decode.params(),
+                drop_outside,
+                &out,
+            )?;
         }
         #[cfg(all(feature = "aravis", feature = "projector"))]
         Command::VirtualCamera {

@@ -9,12 +9,15 @@ use ris_core::cloud::PointCloud;
 use ris_core::decode::{decode, DecodeParams};
 use ris_core::sensor::{ModelChoice, Reconstructor, Sensor};
 
-/// Reconstruct `capture` with `sensor` and write `out` (PLY); returns the cloud.
+/// Reconstruct `capture` with `sensor` and write `out` (PLY); returns the cloud. Points outside
+/// the sensor's calibrated volume are counted and flagged (`outside_volume`), or left out with
+/// `drop_outside`.
 pub fn run(
     sensor: &Path,
     capture: &Path,
     model: ModelChoice,
     params: &DecodeParams,
+    drop_outside: bool,
     out: &Path,
 ) -> Result<PointCloud> {
     let s = Sensor::load(sensor)
@@ -30,15 +33,29 @@ pub fn run(
         decode(&set, params).with_context(|| format!("decoding {}", capture.display()))?;
     let t_decode = t.elapsed();
     let t = Instant::now();
-    let cloud = rec
+    let mut cloud = rec
         .reconstruct(&decoded)
         .with_context(|| format!("reconstructing {}", capture.display()))?;
     let t_rec = t.elapsed();
+    let outside = cloud.outside_count();
+    if drop_outside {
+        cloud.drop_outside();
+    }
+    let volume = match (&rec.volume, drop_outside) {
+        (None, _) => "the sensor file states no calibrated volume".to_string(),
+        (Some(_), false) => {
+            format!("{outside} outside the calibrated volume (flagged `outside_volume`)")
+        }
+        (Some(_), true) => format!("{outside} outside the calibrated volume left out"),
+    };
+    if outside > 0 {
+        tracing::warn!(outside, "points outside the calibrated volume");
+    }
     cloud
         .write_ply(out)
         .with_context(|| format!("writing {}", out.display()))?;
     println!(
-        "{} points ({} model) from {} valid of {} pixels; prepare {:.0} ms, decode {:.0} ms, reconstruct {:.0} ms; wrote {}",
+        "{} points ({} model; {volume}) from {} valid of {} pixels; prepare {:.0} ms, decode {:.0} ms, reconstruct {:.0} ms; wrote {}",
         cloud.len(),
         rec.model_name(),
         decoded.valid_count(),

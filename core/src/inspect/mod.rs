@@ -8,12 +8,14 @@
 //! rigid misalignment acts) and trimmed iteratively (fit, drop points whose deviation departs
 //! from the trusted median by more than an annealed threshold, refit, until the set converges).
 
+mod alignment;
 mod conditioning;
 mod coverage;
 mod output;
 mod regions;
 mod report;
 
+pub use alignment::Alignment;
 pub use conditioning::{analyse as conditioning, Conditioning, Direction, UNPINNED_STRENGTH};
 pub use coverage::{coverage, Coverage};
 pub use output::{deviation_colour, write_deviation_ply, write_deviation_png};
@@ -159,9 +161,12 @@ pub fn inspect(
     }
     let step = (cloud.len() / params.fit_points.max(1)).max(1);
     let fit: Vec<[f64; 3]> = cloud.iter().step_by(step).copied().collect();
-    let start = match params.init {
-        Some(p) => p,
-        None => coarse_alignment(&fit, cad),
+    let (start, alignment) = match params.init {
+        Some(p) => (p, None),
+        None => {
+            let (p, a) = alignment::coarse_alignment(&fit, cad, params.tolerance);
+            (p, Some(a))
+        }
     };
     let (pose, mode, trusted_fit, iterations) = if params.datums.is_empty() {
         trusted_region_fit(&fit, cad, start, params)
@@ -197,6 +202,7 @@ pub fn inspect(
             iterations,
             trusted_fraction: trusted_fit,
             conditioning,
+            alignment,
         },
         coverage,
         non_finite,
@@ -469,89 +475,4 @@ fn trusted_region_fit(
     tracing::debug!(noise, floor, "trusted-region fit");
     let frac = trusted.iter().filter(|t| **t).count() as f64 / pts.len() as f64;
     (pose, "trusted-region", frac, total)
-}
-
-/// Coarse alignment by principal axes of the cloud and of the CAD surface: the four proper
-/// rotations that match the axes are each refined briefly; the best fit wins.
-fn coarse_alignment(pts: &[[f64; 3]], cad: &SignedDistance) -> Pose {
-    let mesh = cad.mesh();
-    let (mut area_sum, mut c_cad) = (0.0, Vector3::zeros());
-    let mut samples = Vec::with_capacity(mesh.triangles.len());
-    for t in 0..mesh.triangles.len() {
-        let [a, b, c] = mesh.corners(t);
-        let area = 0.5 * (b - a).cross(&(c - a)).norm();
-        let centroid = (a + b + c) / 3.0;
-        samples.push((centroid, area));
-        area_sum += area;
-        c_cad += centroid * area;
-    }
-    c_cad /= area_sum.max(1e-300);
-    let cov_cad = samples
-        .iter()
-        .fold(nalgebra::Matrix3::zeros(), |m, (p, a)| {
-            m + (p - c_cad) * (p - c_cad).transpose() * *a
-        })
-        / area_sum.max(1e-300);
-    let c_cloud = pts
-        .iter()
-        .fold(Vector3::zeros(), |s, p| s + Vector3::from(*p))
-        / pts.len() as f64;
-    let cov_cloud = pts.iter().fold(nalgebra::Matrix3::zeros(), |m, p| {
-        let d = Vector3::from(*p) - c_cloud;
-        m + d * d.transpose()
-    }) / pts.len() as f64;
-    let axes = |m: nalgebra::Matrix3<f64>| {
-        let e = m.symmetric_eigen();
-        let mut idx = [0usize, 1, 2];
-        idx.sort_by(|&i, &j| e.eigenvalues[j].total_cmp(&e.eigenvalues[i]));
-        let mut r = nalgebra::Matrix3::from_columns(&[
-            e.eigenvectors.column(idx[0]).into_owned(),
-            e.eigenvectors.column(idx[1]).into_owned(),
-            e.eigenvectors.column(idx[2]).into_owned(),
-        ]);
-        if r.determinant() < 0.0 {
-            r.set_column(2, &(-r.column(2)));
-        }
-        r
-    };
-    let (a_cad, a_cloud) = (axes(cov_cad), axes(cov_cloud));
-    let sub: Vec<[f64; 3]> = pts
-        .iter()
-        .step_by((pts.len() / 5000).max(1))
-        .copied()
-        .collect();
-    let mut best: Option<(f64, Pose)> = None;
-    let mut candidates = vec![Pose::identity()];
-    for flips in [
-        [1.0, 1.0, 1.0],
-        [-1.0, -1.0, 1.0],
-        [-1.0, 1.0, -1.0],
-        [1.0, -1.0, -1.0],
-    ] {
-        let f = nalgebra::Matrix3::from_diagonal(&Vector3::from(flips));
-        let r = a_cad * f * a_cloud.transpose();
-        let rot =
-            UnitQuaternion::from_rotation_matrix(&nalgebra::Rotation3::from_matrix_unchecked(r));
-        candidates.push(Pose::from_parts((c_cad - rot * c_cloud).into(), rot));
-    }
-    for cand in candidates {
-        let (p, _) = fit_to_surface(&sub, cad, cand, 20, &|_, d| {
-            if d.abs() < 50.0 {
-                1.0
-            } else {
-                0.1
-            }
-        });
-        let rms = (sub
-            .iter()
-            .filter_map(|x| cad.query(&(p * Point3::from(*x)).coords))
-            .map(|c| c.distance.min(50.0).powi(2))
-            .sum::<f64>()
-            / sub.len() as f64)
-            .sqrt();
-        if best.as_ref().is_none_or(|b| rms < b.0) {
-            best = Some((rms, p));
-        }
-    }
-    best.map_or(Pose::identity(), |b| b.1)
 }

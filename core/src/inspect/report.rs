@@ -62,6 +62,8 @@ pub struct Registration {
     pub iterations: usize,
     /// Fraction of the fit points trusted at the end.
     pub trusted_fraction: f64,
+    /// How the starting pose was chosen (absent when an initial pose was given).
+    pub alignment: Option<super::Alignment>,
 }
 
 /// The verdict that means the data cannot decide: too little of the part (or of a datum)
@@ -74,6 +76,7 @@ pub(super) struct Fit<'a> {
     pub iterations: usize,
     pub trusted_fraction: f64,
     pub conditioning: super::Conditioning,
+    pub alignment: Option<super::Alignment>,
 }
 
 /// The report.
@@ -156,6 +159,15 @@ pub(super) fn build(
     let (unpinned, warnings) = fit
         .conditioning
         .findings(params.tolerance, params.init.is_some());
+    if let Some(a) = fit.alignment.as_ref().filter(|a| a.ambiguous()) {
+        unmeasured.push(format!(
+            "ambiguous coarse alignment: a pose {:.1}° and {:.1} mm away puts {:.1} % of the points on the CAD against {:.1} % for the one used; give an initial pose or datums",
+            a.runner_up_rotation_deg.unwrap_or(0.0),
+            a.runner_up_shift_mm.unwrap_or(0.0),
+            100.0 * a.runner_up_score.unwrap_or(0.0),
+            100.0 * a.best_score
+        ));
+    }
     unmeasured.extend(unpinned);
     let datums: Vec<DatumResidual> = params
         .datums
@@ -204,6 +216,7 @@ pub(super) fn build(
             mode: fit.mode.into(),
             iterations: fit.iterations,
             trusted_fraction: fit.trusted_fraction,
+            alignment: fit.alignment,
         },
         conditioning: fit.conditioning,
         warnings,

@@ -1,0 +1,197 @@
+//! Coarse alignment of a cloud to its CAD when no initial pose is given: several hypotheses
+//! (principal axes of cloud and CAD surface with every proper sign flip, the two largest axes
+//! also swapped for near-square parts, and the pose as given), each refined briefly and scored
+//! by the fraction of points that land on the CAD surface. The best wins; the best *different*
+//! pose's score is kept so that an ambiguous case (a symmetric or deformed part) is visible.
+
+use nalgebra::{Matrix3, Point3, UnitQuaternion, Vector3};
+use serde::Serialize;
+
+use super::fit_to_surface;
+use crate::mesh::SignedDistance;
+use crate::register::{rotation_angle_deg, Pose};
+
+/// How the coarse alignment chose the starting pose.
+#[derive(Clone, Debug, Serialize)]
+pub struct Alignment {
+    /// Hypotheses refined and scored.
+    pub hypotheses: usize,
+    /// Distance band a point must land within to count, mm.
+    pub band_mm: f64,
+    /// Fraction of the points within the band at the chosen pose.
+    pub best_score: f64,
+    /// The same for the best pose that differs from the chosen one (by more than 2° or
+    /// 5 mm), when any.
+    pub runner_up_score: Option<f64>,
+    /// How far the runner-up lies from the chosen pose: rotation, degrees.
+    pub runner_up_rotation_deg: Option<f64>,
+    /// And translation of the cloud's centre, mm.
+    pub runner_up_shift_mm: Option<f64>,
+}
+
+impl Alignment {
+    /// Whether a different pose fits nearly as well (its score at least 90 % of the best):
+    /// the report is then `not_measured`.
+    pub fn ambiguous(&self) -> bool {
+        self.runner_up_score
+            .is_some_and(|r| r >= 0.9 * self.best_score)
+    }
+}
+
+/// Principal axes (columns, largest first) of a covariance, as a proper rotation.
+fn axes(m: Matrix3<f64>) -> Matrix3<f64> {
+    let e = m.symmetric_eigen();
+    let mut idx = [0usize, 1, 2];
+    idx.sort_by(|&i, &j| e.eigenvalues[j].total_cmp(&e.eigenvalues[i]));
+    let mut r = Matrix3::from_columns(&[
+        e.eigenvectors.column(idx[0]).into_owned(),
+        e.eigenvectors.column(idx[1]).into_owned(),
+        e.eigenvectors.column(idx[2]).into_owned(),
+    ]);
+    if r.determinant() < 0.0 {
+        r.set_column(2, &(-r.column(2)));
+    }
+    r
+}
+
+/// Area-weighted centroid and covariance of the CAD surface.
+fn cad_moments(cad: &SignedDistance) -> (Vector3<f64>, Matrix3<f64>) {
+    let mesh = cad.mesh();
+    let (mut area_sum, mut c) = (0.0, Vector3::zeros());
+    let mut samples = Vec::with_capacity(mesh.triangles.len());
+    for t in 0..mesh.triangles.len() {
+        let [a, b, cc] = mesh.corners(t);
+        let area = 0.5 * (b - a).cross(&(cc - a)).norm();
+        let centroid = (a + b + cc) / 3.0;
+        samples.push((centroid, area));
+        area_sum += area;
+        c += centroid * area;
+    }
+    let w = area_sum.max(1e-300);
+    c /= w;
+    let cov = samples.iter().fold(Matrix3::zeros(), |m, (p, a)| {
+        m + (p - c) * (p - c).transpose() * *a
+    }) / w;
+    (c, cov)
+}
+
+/// The best starting pose for `pts` on `cad` and how it was chosen; `tolerance` (mm) sets the
+/// scoring band.
+pub(super) fn coarse_alignment(
+    pts: &[[f64; 3]],
+    cad: &SignedDistance,
+    tolerance: f64,
+) -> (Pose, Alignment) {
+    let (c_cad, cov_cad) = cad_moments(cad);
+    let n = pts.len().max(1) as f64;
+    let c_cloud = pts
+        .iter()
+        .fold(Vector3::zeros(), |s, p| s + Vector3::from(*p))
+        / n;
+    let cov_cloud = pts.iter().fold(Matrix3::zeros(), |m, p| {
+        let d = Vector3::from(*p) - c_cloud;
+        m + d * d.transpose()
+    }) / n;
+    let (a_cad, a_cloud) = (axes(cov_cad), axes(cov_cloud));
+    let sub: Vec<[f64; 3]> = pts
+        .iter()
+        .step_by((pts.len() / 5000).max(1))
+        .copied()
+        .collect();
+    let mut candidates = vec![Pose::identity()];
+    let swap = Matrix3::new(0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -1.0);
+    // A partly seen part's centroid is not the CAD's: its centre is also tried a quarter of
+    // the CAD's extent away along each of the two largest axes.
+    let mut sd: Vec<f64> = cov_cad
+        .symmetric_eigen()
+        .eigenvalues
+        .iter()
+        .map(|e| 2.0 * e.max(0.0).sqrt())
+        .collect();
+    sd.sort_by(|a, b| b.total_cmp(a));
+    let shifts = [
+        Vector3::zeros(),
+        a_cad.column(0) * 0.5 * sd[0],
+        a_cad.column(0) * -0.5 * sd[0],
+        a_cad.column(1) * 0.5 * sd[1],
+        a_cad.column(1) * -0.5 * sd[1],
+    ];
+    for order in [Matrix3::identity(), swap] {
+        for flips in [
+            [1.0, 1.0, 1.0],
+            [-1.0, -1.0, 1.0],
+            [-1.0, 1.0, -1.0],
+            [1.0, -1.0, -1.0],
+        ] {
+            let f = Matrix3::from_diagonal(&Vector3::from(flips));
+            let r = a_cad * order * f * a_cloud.transpose();
+            let rot = UnitQuaternion::from_rotation_matrix(
+                &nalgebra::Rotation3::from_matrix_unchecked(r),
+            );
+            for shift in &shifts {
+                candidates.push(Pose::from_parts(
+                    (c_cad + shift - rot * c_cloud).into(),
+                    rot,
+                ));
+            }
+        }
+    }
+    let band = (3.0 * tolerance).max(0.5);
+    let refine = |pts: &[[f64; 3]], start: &Pose, iterations: usize| {
+        let (p, _) = fit_to_surface(pts, cad, *start, iterations, &|_, d| {
+            if d.abs() < 50.0 {
+                1.0
+            } else {
+                0.1
+            }
+        });
+        let (mut within, mut sq) = (0usize, 0.0);
+        for x in pts {
+            if let Some(c) = cad.query(&(p * Point3::from(*x)).coords) {
+                within += usize::from(c.distance.abs() <= band);
+                sq += c.distance.min(50.0).powi(2);
+            }
+        }
+        let m = pts.len().max(1) as f64;
+        (within as f64 / m, (sq / m).sqrt(), p)
+    };
+    // Best: most points on the surface, then the smaller truncated RMS.
+    let order =
+        |a: &(f64, f64, Pose), b: &(f64, f64, Pose)| b.0.total_cmp(&a.0).then(a.1.total_cmp(&b.1));
+    // Every hypothesis briefly on a small sample, the most promising ones at length.
+    let few: Vec<[f64; 3]> = sub
+        .iter()
+        .step_by((sub.len() / 800).max(1))
+        .copied()
+        .collect();
+    let mut first: Vec<(f64, f64, Pose)> = candidates.iter().map(|c| refine(&few, c, 8)).collect();
+    first.sort_by(order);
+    let scored: Vec<(f64, f64, Pose)> = first
+        .iter()
+        .take(6)
+        .map(|(_, _, p)| refine(&sub, p, 20))
+        .collect();
+    let mut sorted: Vec<&(f64, f64, Pose)> = scored.iter().collect();
+    sorted.sort_by(|a, b| order(a, b));
+    let best = sorted[0];
+    let centre = Point3::from(c_cloud);
+    let differs = |p: &Pose| {
+        let rel = p * best.2.inverse();
+        let shift = ((p * centre) - (best.2 * centre)).norm();
+        (rotation_angle_deg(&rel), shift)
+    };
+    let runner = sorted.iter().skip(1).find_map(|s| {
+        let (deg, mm) = differs(&s.2);
+        (deg > 2.0 || mm > 5.0).then_some((s.0, deg, mm))
+    });
+    let alignment = Alignment {
+        hypotheses: candidates.len(),
+        band_mm: band,
+        best_score: best.0,
+        runner_up_score: runner.map(|r| r.0),
+        runner_up_rotation_deg: runner.map(|r| r.1),
+        runner_up_shift_mm: runner.map(|r| r.2),
+    };
+    tracing::debug!(?alignment, "coarse alignment");
+    (best.2, alignment)
+}

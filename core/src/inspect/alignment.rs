@@ -27,14 +27,19 @@ pub struct Alignment {
     pub runner_up_rotation_deg: Option<f64>,
     /// And translation of the cloud's centre, mm.
     pub runner_up_shift_mm: Option<f64>,
+    /// RMS of the change in the points' deviations between the two poses, mm: near zero when
+    /// the runner-up is the chosen pose's image under a symmetry of the part.
+    pub runner_up_map_change_mm: Option<f64>,
+    /// A different pose fits nearly as well (score at least 90 % of the best) and would draw a
+    /// different map (deviations changing by more than half the tolerance RMS): the report is
+    /// then `not_measured`.
+    pub ambiguous: bool,
 }
 
 impl Alignment {
-    /// Whether a different pose fits nearly as well (its score at least 90 % of the best):
-    /// the report is then `not_measured`.
+    /// Whether the data cannot tell the pose (see [`Alignment::ambiguous`], the field).
     pub fn ambiguous(&self) -> bool {
-        self.runner_up_score
-            .is_some_and(|r| r >= 0.9 * self.best_score)
+        self.ambiguous
     }
 }
 
@@ -182,7 +187,30 @@ pub(super) fn coarse_alignment(
     };
     let runner = sorted.iter().skip(1).find_map(|s| {
         let (deg, mm) = differs(&s.2);
-        (deg > 2.0 || mm > 5.0).then_some((s.0, deg, mm))
+        (deg > 2.0 || mm > 5.0).then_some((s.0, deg, mm, s.2))
+    });
+    let deviations = |p: &Pose| -> Vec<f64> {
+        sub.iter()
+            .map(|x| {
+                cad.query(&(p * Point3::from(*x)).coords)
+                    .map_or(f64::NAN, |c| c.distance)
+            })
+            .collect()
+    };
+    let change = runner.map(|r| {
+        let (a, b) = (deviations(&best.2), deviations(&r.3));
+        let (mut s, mut n) = (0.0, 0usize);
+        for (x, y) in a.iter().zip(&b) {
+            if x.is_finite() && y.is_finite() {
+                s += (x - y).powi(2);
+                n += 1;
+            }
+        }
+        if n == 0 {
+            f64::INFINITY
+        } else {
+            (s / n as f64).sqrt()
+        }
     });
     let alignment = Alignment {
         hypotheses: candidates.len(),
@@ -191,6 +219,9 @@ pub(super) fn coarse_alignment(
         runner_up_score: runner.map(|r| r.0),
         runner_up_rotation_deg: runner.map(|r| r.1),
         runner_up_shift_mm: runner.map(|r| r.2),
+        runner_up_map_change_mm: change,
+        ambiguous: runner.is_some_and(|r| r.0 >= 0.9 * best.0)
+            && change.is_some_and(|c| c > 0.5 * tolerance),
     };
     tracing::debug!(?alignment, "coarse alignment");
     (best.2, alignment)

@@ -10,23 +10,8 @@ use ris_core::inspect::{inspect, InspectParams, Report};
 use ris_core::mesh::{SignedDistance, TriangleMesh};
 use ris_core::register::Pose;
 
-struct Rng(u64);
-
-impl Rng {
-    fn uniform(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((self.0 >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    }
-    fn range(&mut self, a: f64, b: f64) -> f64 {
-        a + (b - a) * self.uniform()
-    }
-    fn gauss(&mut self) -> f64 {
-        (-2.0 * self.uniform().ln()).sqrt() * (std::f64::consts::TAU * self.uniform()).cos()
-    }
-}
+mod common;
+use common::Rng;
 
 /// Inspect a cloud sampled from `surface` over ±hx × ±hy (CAD frame), seen from a random pose
 /// with noise; the registration starts near the truth.

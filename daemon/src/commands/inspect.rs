@@ -24,7 +24,10 @@ pub fn run(
         tolerance.is_finite() && tolerance > 0.0,
         "--tolerance must be a positive number of mm, got {tolerance}"
     );
-    let c = PointCloud::read_ply(cloud).with_context(|| format!("reading {}", cloud.display()))?;
+    let mut c =
+        PointCloud::read_ply(cloud).with_context(|| format!("reading {}", cloud.display()))?;
+    // Points flagged outside their sensor's calibrated volume are not trusted to measure.
+    let outside = c.drop_outside();
     let mesh =
         TriangleMesh::load_stl(cad).with_context(|| format!("reading CAD {}", cad.display()))?;
     let datums = match datums {
@@ -38,7 +41,7 @@ pub fn run(
         .iter()
         .map(|p| [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])])
         .collect();
-    let r = inspect(
+    let mut r = inspect(
         &pts,
         &sd,
         &InspectParams {
@@ -49,6 +52,11 @@ pub fn run(
         },
     )
     .with_context(|| format!("inspecting {}", cloud.display()))?;
+    if outside > 0 {
+        r.report.warnings.push(format!(
+            "{outside} points flagged outside their sensor's calibrated volume were not inspected"
+        ));
+    }
     let elapsed = t.elapsed();
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     write_deviation_ply(&out.join("deviation.ply"), &r.points, &r.deviations)?;

@@ -64,11 +64,7 @@ fn datums() -> Vec<Datum> {
     ]
     .iter()
     .enumerate()
-    .map(|(i, &(x, y))| Datum {
-        name: format!("D{}", i + 1),
-        position: [x, y, surface(x, y)],
-        radius: 20.0,
-    })
+    .map(|(i, &(x, y))| Datum::region(&format!("D{}", i + 1), [x, y, surface(x, y)], 20.0))
     .collect()
 }
 
@@ -139,11 +135,7 @@ fn without_datums_trusted_regions_keep_the_deformation_out_of_the_fit() {
     let cad = cad(dir.path());
     let (cloud, truth, _) = measure(true);
     // Plain least squares: one datum covering the whole part.
-    let all = vec![Datum {
-        name: "all".into(),
-        position: [0.0, 0.0, 0.0],
-        radius: 1e4,
-    }];
+    let all = vec![Datum::region("all", [0.0, 0.0, 0.0], 1e4)];
     let (plain, _) = deviation_error(&cloud, &truth, &cad, all);
     let (trimmed, r) = deviation_error(&cloud, &truth, &cad, Vec::new());
     eprintln!("no datums: deviation error RMS {trimmed:.4} mm vs plain least squares {plain:.4} mm; trusted {:.2}", r.report.registration.trusted_fraction);
@@ -190,11 +182,7 @@ fn a_part_with_a_datum_out_of_tolerance_fails_and_says_so() {
     let (cloud, _, _) = measure(false);
     let mut ds = datums();
     // A fifth datum D5 whose measured patch sits 2 mm proud of the nominal: it cannot be met.
-    ds.push(Datum {
-        name: "D5".into(),
-        position: [0.0, 100.0, surface(0.0, 100.0)],
-        radius: 15.0,
-    });
+    ds.push(Datum::region("D5", [0.0, 100.0, surface(0.0, 100.0)], 15.0));
     let mut cloud = cloud;
     let sensor_from_cad = measure(false).2;
     for p in cloud.iter_mut() {

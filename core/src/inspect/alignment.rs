@@ -34,6 +34,10 @@ pub struct Alignment {
     /// different map (deviations changing by more than half the tolerance RMS): the report is
     /// then `not_measured`.
     pub ambiguous: bool,
+    /// How an ambiguity was settled: a datum reference frame measured every datum from one
+    /// contender only.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub settled_by: Option<String>,
 }
 
 impl Alignment {
@@ -81,12 +85,13 @@ fn cad_moments(cad: &SignedDistance) -> (Vector3<f64>, Matrix3<f64>) {
 }
 
 /// The best starting pose for `pts` on `cad` and how it was chosen; `tolerance` (mm) sets the
-/// scoring band.
+/// scoring band. Also the contenders: the distinct poses scoring at least 90 % of the best
+/// (best first, at most 4), for a datum frame to decide between.
 pub(super) fn coarse_alignment(
     pts: &[[f64; 3]],
     cad: &SignedDistance,
     tolerance: f64,
-) -> (Pose, Alignment) {
+) -> (Pose, Alignment, Vec<Pose>) {
     let (c_cad, cov_cad) = cad_moments(cad);
     let n = pts.len().max(1) as f64;
     let c_cloud = pts
@@ -222,7 +227,20 @@ pub(super) fn coarse_alignment(
         runner_up_map_change_mm: change,
         ambiguous: runner.is_some_and(|r| r.0 >= 0.9 * best.0)
             && change.is_some_and(|c| c > 0.5 * tolerance),
+        settled_by: None,
     };
+    let mut contenders = vec![best.2];
+    for s in sorted.iter().skip(1) {
+        if contenders.len() < 4
+            && s.0 >= 0.9 * best.0
+            && contenders.iter().all(|c| {
+                let rel = s.2 * c.inverse();
+                rotation_angle_deg(&rel) > 2.0 || ((s.2 * centre) - (c * centre)).norm() > 5.0
+            })
+        {
+            contenders.push(s.2);
+        }
+    }
     tracing::debug!(?alignment, "coarse alignment");
-    (best.2, alignment)
+    (best.2, alignment, contenders)
 }

@@ -11,6 +11,9 @@
 mod alignment;
 mod conditioning;
 mod coverage;
+mod datums;
+mod features;
+mod frame;
 mod output;
 mod regions;
 mod report;
@@ -18,61 +21,19 @@ mod report;
 pub use alignment::Alignment;
 pub use conditioning::{analyse as conditioning, Conditioning, Direction, UNPINNED_STRENGTH};
 pub use coverage::{coverage, Coverage};
+pub use datums::{level_dofs, load_datums, validate as validate_datums, Datum, Feature};
+pub use frame::DatumMeasurement;
 pub use output::{deviation_colour, write_deviation_ply, write_deviation_png};
 pub use regions::{out_of_tolerance_regions, Region};
 pub use report::{DatumResidual, Report, Statistics, NOT_MEASURED};
 
-use std::path::Path;
-
 use nalgebra::{Matrix6, Point3, UnitQuaternion, Vector3, Vector6};
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 
-use crate::io::read_toml;
 use crate::mesh::SignedDistance;
 use crate::register::Pose;
 use crate::{Error, Result};
-
-/// A datum region: CAD points within `radius` of `position` (CAD frame, mm).
-#[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Datum {
-    /// Name used in the report.
-    pub name: String,
-    /// Centre, CAD frame.
-    pub position: [f64; 3],
-    /// Radius, mm.
-    pub radius: f64,
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct DatumsFile {
-    datum: Vec<Datum>,
-}
-
-/// Read a datums file (`[[datum]]` with `name`, `position`, `radius`).
-pub fn load_datums(path: &Path) -> Result<Vec<Datum>> {
-    let f: DatumsFile = read_toml(path)?;
-    let ctx = path.display().to_string();
-    for (i, d) in f.datum.iter().enumerate() {
-        if !(d.radius.is_finite() && d.radius > 0.0) {
-            return Err(Error::invalid(
-                &ctx,
-                format!("datum[{i}].radius"),
-                format!("{} must be positive", d.radius),
-            ));
-        }
-        if d.position.iter().any(|v| !v.is_finite()) {
-            return Err(Error::invalid(
-                &ctx,
-                format!("datum[{i}].position"),
-                "must be finite",
-            ));
-        }
-    }
-    Ok(f.datum)
-}
+use datums::in_datums;
 
 /// Inspection settings.
 #[derive(Clone, Debug)]
@@ -161,14 +122,22 @@ pub fn inspect(
     }
     let step = (cloud.len() / params.fit_points.max(1)).max(1);
     let fit: Vec<[f64; 3]> = cloud.iter().step_by(step).copied().collect();
-    let (start, alignment) = match params.init {
-        Some(p) => (p, None),
+    let (start, mut alignment, contenders) = match params.init {
+        Some(p) => (p, None, vec![p]),
         None => {
-            let (p, a) = alignment::coarse_alignment(&fit, cad, params.tolerance);
-            (p, Some(a))
+            let (p, a, c) = alignment::coarse_alignment(&fit, cad, params.tolerance);
+            (p, Some(a), c)
         }
     };
-    let (pose, mode, trusted_fit, iterations) = if params.datums.is_empty() {
+    let framed = params.datums.iter().any(|d| d.order.is_some());
+    let mut measurements = Vec::new();
+    let mut frame_conditioning = None;
+    let (pose, mode, trusted_fit, iterations) = if framed {
+        let f = frame_from_contenders(cloud, &fit, cad, params, &contenders, alignment.as_mut());
+        measurements = f.measurements;
+        frame_conditioning = Some(f.conditioning);
+        (f.pose, "datum-frame", 0.0, f.iterations)
+    } else if params.datums.is_empty() {
         trusted_region_fit(&fit, cad, start, params)
     } else {
         datum_fit(&fit, cad, start, params)
@@ -186,12 +155,18 @@ pub fn inspect(
         .map(|(p, _)| *p)
         .collect();
     let coverage = coverage::coverage(cad.mesh(), &on_surface, params.min_coverage);
-    // What the fit used: the datum regions when the part has datums, else the surface.
-    let fit_cad: Vec<[f64; 3]> = to_cad(&fit, &pose)
-        .into_iter()
-        .filter(|p| params.datums.is_empty() || in_datums(p, &params.datums))
-        .collect();
-    let conditioning = conditioning::analyse(&fit_cad, cad, near, params.tolerance);
+    // What the fit used: the datum regions when the part has datums, else the surface; a
+    // datum frame states its own.
+    let conditioning = match frame_conditioning {
+        Some(c) => c,
+        None => {
+            let fit_cad: Vec<[f64; 3]> = to_cad(&fit, &pose)
+                .into_iter()
+                .filter(|p| params.datums.is_empty() || in_datums(p, &params.datums))
+                .collect();
+            conditioning::analyse(&fit_cad, cad, near, params.tolerance)
+        }
+    };
     let report = report::build(
         &points,
         &deviations,
@@ -203,6 +178,7 @@ pub fn inspect(
             trusted_fraction: trusted_fit,
             conditioning,
             alignment,
+            measurements,
         },
         coverage,
         non_finite,
@@ -215,17 +191,73 @@ pub fn inspect(
     })
 }
 
+/// The datum frame fitted from each coarse-alignment contender (a robust fit on everything first
+/// brings the datums into reach); the one that measures the most datums wins, then the one that
+/// puts the most points on the CAD. A symmetric part's ambiguity is settled when only that one
+/// measures every datum.
+fn frame_from_contenders(
+    cloud: &[[f64; 3]],
+    fit: &[[f64; 3]],
+    cad: &SignedDistance,
+    params: &InspectParams,
+    contenders: &[Pose],
+    alignment: Option<&mut Alignment>,
+) -> frame::FrameFit {
+    let band = (3.0 * params.tolerance).max(0.5);
+    let sample: Vec<[f64; 3]> = fit
+        .iter()
+        .step_by((fit.len() / 5000).max(1))
+        .copied()
+        .collect();
+    let mut tries: Vec<(usize, f64, frame::FrameFit)> = contenders
+        .iter()
+        .map(|start| {
+            let (rough, it) = fit_to_surface(fit, cad, *start, 15, &|_, d| {
+                if d.abs() < 5.0 {
+                    1.0
+                } else {
+                    0.0
+                }
+            });
+            let mut f = frame::fit(cloud, cad, &params.datums, rough, params.tolerance);
+            f.iterations += it;
+            let measured = f.measurements.iter().filter(|m| m.error.is_none()).count();
+            let on = cad
+                .query_all(&to_cad(&sample, &f.pose))
+                .iter()
+                .filter(|d| d.abs() <= band)
+                .count();
+            (measured, on as f64 / sample.len().max(1) as f64, f)
+        })
+        .collect();
+    tries.sort_by(|a, b| b.0.cmp(&a.0).then(b.1.total_cmp(&a.1)));
+    if let Some(a) = alignment.filter(|a| a.ambiguous) {
+        let best = &tries[0];
+        let rivals = tries[1..]
+            .iter()
+            .filter(|t| t.0 == best.0 && t.1 >= 0.9 * best.1)
+            .filter(|t| {
+                let rel = t.2.pose * best.2.pose.inverse();
+                crate::register::rotation_angle_deg(&rel) > 2.0
+                    || rel.translation.vector.norm() > 5.0
+            })
+            .count();
+        if rivals == 0 && best.0 == params.datums.len() {
+            a.ambiguous = false;
+            a.settled_by = Some(format!(
+                "datum frame: of {} contending poses only this one measures every datum",
+                tries.len()
+            ));
+        }
+    }
+    tries.swap_remove(0).2
+}
+
 /// `pts` mapped into the CAD frame by `pose`.
 fn to_cad(pts: &[[f64; 3]], pose: &Pose) -> Vec<[f64; 3]> {
     pts.par_iter()
         .map(|p| (pose * Point3::from(*p)).coords.into())
         .collect()
-}
-
-fn in_datums(p: &[f64; 3], datums: &[Datum]) -> bool {
-    datums
-        .iter()
-        .any(|d| (0..3).map(|k| (p[k] - d.position[k]).powi(2)).sum::<f64>() <= d.radius * d.radius)
 }
 
 fn median(v: &[f64]) -> f64 {
@@ -369,6 +401,14 @@ fn fit_to_surface(
         let (ata, atb, n) = (eq.ata, eq.atb, eq.count);
         if n < 6 {
             break;
+        }
+        // Levenberg damping: a direction the surface does not pin (a cylinder's axis, a
+        // near-quadric's slide) stays put instead of taking a huge step; a pinned one
+        // converges to the same pose.
+        let mut ata = ata;
+        let ridge = 1e-9 * ata.trace();
+        for k in 0..6 {
+            ata[(k, k)] += ridge;
         }
         let Some(ch) = ata.cholesky() else { break };
         let x = ch.solve(&atb);

@@ -3,7 +3,7 @@
 
 use serde::Serialize;
 
-use super::{in_datums, out_of_tolerance_regions, Coverage, InspectParams, Region};
+use super::{out_of_tolerance_regions, Coverage, DatumMeasurement, Feature, InspectParams, Region};
 use crate::register::Pose;
 
 /// Deviation statistics over all points, mm.
@@ -51,6 +51,10 @@ pub struct DatumResidual {
     pub p99_abs: f64,
     /// Whether p99_abs ≤ tolerance (and the datum was measured at all).
     pub in_tolerance: bool,
+    /// In a datum reference frame: the feature as measured (position, offsets along the
+    /// directions it pins, size).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub frame: Option<super::DatumMeasurement>,
 }
 
 /// Registration summary.
@@ -77,6 +81,7 @@ pub(super) struct Fit<'a> {
     pub trusted_fraction: f64,
     pub conditioning: super::Conditioning,
     pub alignment: Option<super::Alignment>,
+    pub measurements: Vec<super::DatumMeasurement>,
 }
 
 /// The report.
@@ -172,22 +177,40 @@ pub(super) fn build(
     let datums: Vec<DatumResidual> = params
         .datums
         .iter()
-        .map(|d| {
-            let mut v: Vec<f64> = points.iter().zip(dev).filter(|(p, e)| e.is_finite() && in_datums(p, std::slice::from_ref(d))).map(|(_, e)| *e).collect();
-            let k = v.len().max(1) as f64;
-            let mean = v.iter().sum::<f64>() / k;
-            let rms = (v.iter().map(|e| e * e).sum::<f64>() / k).sqrt();
-            v.iter_mut().for_each(|e| *e = e.abs());
-            v.sort_by(f64::total_cmp);
-            let p99 = percentile(&v, 0.99);
-            let measured = v.len() >= params.min_datum_points.max(1);
-            let in_tolerance = measured && p99 <= tol;
-            if !measured {
-                unmeasured.push(format!("datum {} was not measured ({} points within {} mm of it, {} needed)", d.name, v.len(), d.radius, params.min_datum_points.max(1)));
-            } else if !in_tolerance {
-                reasons.push(format!("datum {} is out of tolerance: 99 % of its deviations within {p99:.3} mm > {tol} mm", d.name));
+        .enumerate()
+        .map(|(i, d)| {
+            let r = datum_residual(points, dev, d, fit.measurements.get(i), params);
+            let what = if d.feature == Feature::Surface {
+                "datum".to_string()
+            } else {
+                format!("datum ({:?})", d.feature).to_lowercase()
+            };
+            match (&r.frame, r.in_tolerance) {
+                (Some(DatumMeasurement { error: Some(why), .. }), _) => {
+                    unmeasured.push(format!("{what} {} was not measured: {why}", d.name))
+                }
+                (Some(m), false) if d.feature != Feature::Surface => reasons.push(format!(
+                    "{what} {} is {:.3} mm from its nominal position (offsets {:?} mm) > {tol} mm",
+                    d.name,
+                    m.offset_mm.iter().map(|o| o * o).sum::<f64>().sqrt(),
+                    m.offset_mm.iter().map(|o| (o * 1000.0).round() / 1000.0).collect::<Vec<_>>()
+                )),
+                _ if r.points < params.min_datum_points.max(1) && d.feature == Feature::Surface => {
+                    unmeasured.push(format!(
+                        "datum {} was not measured ({} points within {} mm of it, {} needed)",
+                        d.name,
+                        r.points,
+                        d.radius,
+                        params.min_datum_points.max(1)
+                    ))
+                }
+                (_, false) => reasons.push(format!(
+                    "datum {} is out of tolerance: 99 % of its deviations within {:.3} mm > {tol} mm",
+                    d.name, r.p99_abs
+                )),
+                _ => {}
             }
-            DatumResidual { name: d.name.clone(), points: v.len(), mean, rms, p99_abs: p99, in_tolerance }
+            r
         })
         .collect();
     let spacing = cell_size(points);
@@ -224,6 +247,46 @@ pub(super) fn build(
         statistics,
         datums,
         regions_out_of_tolerance: regions,
+    }
+}
+
+/// How datum `d` sits: deviations of the points in its neighbourhood and, in a datum frame,
+/// its measurement. A surface datum is in tolerance when 99 % of its deviations are; a
+/// feature when its offset from the nominal is within the tolerance.
+fn datum_residual(
+    points: &[[f64; 3]],
+    dev: &[f64],
+    d: &super::Datum,
+    frame: Option<&DatumMeasurement>,
+    params: &InspectParams,
+) -> DatumResidual {
+    let mut v: Vec<f64> = points
+        .iter()
+        .zip(dev)
+        .filter(|(p, e)| e.is_finite() && d.contains(p))
+        .map(|(_, e)| *e)
+        .collect();
+    let k = v.len().max(1) as f64;
+    let mean = v.iter().sum::<f64>() / k;
+    let rms = (v.iter().map(|e| e * e).sum::<f64>() / k).sqrt();
+    v.iter_mut().for_each(|e| *e = e.abs());
+    v.sort_by(f64::total_cmp);
+    let p99 = percentile(&v, 0.99);
+    let in_tolerance = match frame {
+        Some(m) if m.error.is_some() => false,
+        Some(m) if d.feature != Feature::Surface => {
+            m.offset_mm.iter().map(|o| o * o).sum::<f64>().sqrt() <= params.tolerance
+        }
+        _ => v.len() >= params.min_datum_points.max(1) && p99 <= params.tolerance,
+    };
+    DatumResidual {
+        name: d.name.clone(),
+        points: v.len(),
+        mean,
+        rms,
+        p99_abs: p99,
+        in_tolerance,
+        frame: frame.cloned(),
     }
 }
 

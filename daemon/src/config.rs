@@ -169,7 +169,7 @@ pub struct PartSection {
     pub id: String,
     /// CAD model (binary or ASCII STL), cell frame.
     pub cad: PathBuf,
-    /// Datum regions (`[[datum]] name, position, radius`).
+    /// Datums (`[[datum]] name, position, radius`, and for a 3-2-1 frame `order`, `feature`).
     #[serde(default)]
     pub datums: Option<PathBuf>,
     /// Tolerance on |deviation|, mm.

@@ -559,6 +559,133 @@ fn inspect_writes_deviation_map_report_and_exit_status() {
 }
 
 #[test]
+fn inspect_with_a_3_2_1_datum_frame_reports_each_datum() {
+    use ris_core::cloud::PointCloud;
+    use ris_core::geometry::{Point3, Vector3};
+    use ris_core::mesh::{stl, TriangleMesh};
+    use ris_core::register::Pose;
+    let dir = tempfile::tempdir().expect("tempdir");
+    // A shallow dome with a 12 mm hole; its rim at y = 80 is the tertiary datum.
+    let surface = |x: f64, y: f64| -(x * x + y * y) / 8000.0;
+    let in_hole = |x: f64, y: f64| (x + 70.0).hypot(y - 5.0) < 6.0;
+    let mut mesh = TriangleMesh::height_field(120, 80, (-120.0, 120.0), (-80.0, 80.0), surface);
+    let verts = mesh.vertices.clone();
+    mesh.triangles.retain(|t| {
+        let c = t
+            .iter()
+            .fold(Vector3::zeros(), |a, i| a + verts[*i as usize])
+            / 3.0;
+        !in_hole(c.x, c.y)
+    });
+    let cad = dir.path().join("part.stl");
+    stl::write_binary(&cad, &mesh).expect("stl");
+    // Measured on a 0.5 mm grid, in a sensor frame 2° and a few mm away from the CAD's.
+    let sensor_from_cad = Pose::new(
+        Vector3::new(4.0, -3.0, 2.0),
+        Vector3::new(0.01, -0.02, 0.035),
+    );
+    let mut cloud = PointCloud::default();
+    for j in 0..=320 {
+        for i in 0..=480 {
+            let (x, y) = (-120.0 + 0.5 * i as f64, -80.0 + 0.5 * j as f64);
+            if in_hole(x, y) {
+                continue;
+            }
+            let p = sensor_from_cad * Point3::new(x, y, surface(x, y));
+            cloud.points.push([p.x as f32, p.y as f32, p.z as f32]);
+            cloud.confidence.push(1.0);
+        }
+    }
+    let cp = dir.path().join("scan.ply");
+    cloud.write_ply(&cp).expect("ply");
+    let mut text = String::new();
+    for (n, (x, y)) in [(-100.0, -60.0), (100.0, -60.0), (100.0, 60.0)]
+        .iter()
+        .enumerate()
+    {
+        text.push_str(&format!(
+            "[[datum]]\nname = \"A{}\"\nposition = [{x}, {y}, {}]\nradius = 15.0\norder = 1\n",
+            n + 1,
+            surface(*x, *y)
+        ));
+    }
+    text.push_str(&format!(
+        "[[datum]]\nname = \"B\"\nfeature = \"hole\"\nposition = [-70.0, 5.0, {}]\nradius = 16.0\ndiameter = 12.0\norder = 2\n",
+        surface(-70.0, 5.0)
+    ));
+    text.push_str(&format!(
+        "[[datum]]\nname = \"C\"\nfeature = \"edge\"\nposition = [60.0, 80.0, {}]\nradius = 12.0\ndirection = [0.0, 1.0, 0.0]\norder = 3\n",
+        surface(60.0, 80.0)
+    ));
+    let datums = dir.path().join("frame.toml");
+    std::fs::write(&datums, text).expect("datums");
+    let out = dir.path().join("report");
+    let o = ris(&[
+        "inspect",
+        "--cloud",
+        s(&cp),
+        "--cad",
+        s(&cad),
+        "--datums",
+        s(&datums),
+        "--tolerance",
+        "0.2",
+        "--out",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        said.contains("datum B (Hole, order 2): at (-70.0"),
+        "{said}"
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).expect("report"))
+            .expect("json");
+    assert_eq!(report["verdict"], "pass", "{}", report["reasons"]);
+    assert_eq!(report["registration"]["mode"], "datum-frame");
+    assert_eq!(report["conditioning"]["pinned"], true);
+    let hole = &report["datums"][3]["frame"];
+    assert_eq!(hole["feature"], "hole");
+    let measured: Vec<f64> = hole["measured"]
+        .as_array()
+        .expect("measured")
+        .iter()
+        .map(|v| v.as_f64().expect("f64"))
+        .collect();
+    assert!(
+        (measured[0] + 70.0).abs() < 0.15 && (measured[1] - 5.0).abs() < 0.15,
+        "{hole}"
+    );
+    assert!(
+        (hole["size_mm"].as_f64().expect("size") - 12.0).abs() < 0.3,
+        "{hole}"
+    );
+    assert!(
+        report["datums"][4]["frame"]["error"].is_null(),
+        "{}",
+        report["datums"][4]
+    );
+    // The map puts every point where it is on the part: the reported transform inverts the
+    // sensor pose within 0.15 mm over the part.
+    let t = &report["transform"];
+    let m = |i: usize, j: usize| t[i][j].as_f64().expect("transform");
+    for (x, y) in [
+        (-120.0, -80.0),
+        (120.0, -80.0),
+        (120.0, 80.0),
+        (-120.0, 80.0),
+    ] {
+        let p = sensor_from_cad * Point3::new(x, y, surface(x, y));
+        let q: Vec<f64> = (0..3)
+            .map(|i| m(i, 0) * p.x + m(i, 1) * p.y + m(i, 2) * p.z + m(i, 3))
+            .collect();
+        let err = (q[0] - x).hypot(q[1] - y).hypot(q[2] - surface(x, y));
+        assert!(err < 0.15, "corner ({x}, {y}) mapped {err} mm off");
+    }
+}
+
+#[test]
 fn calibrate_cell_writes_to_common_from_a_simulated_gauge() {
     use ris_core::calibrate::Gauge;
     use ris_core::geometry::rotation_xyz_deg;

@@ -220,3 +220,90 @@ pub fn level_dofs(datums: &[Datum], order: u8) -> usize {
 pub(super) fn in_datums(p: &[f64; 3], datums: &[Datum]) -> bool {
     datums.iter().any(|d| d.contains(p))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Result<Vec<Datum>> {
+        let f: DatumsFile =
+            toml::from_str(text).map_err(|e| Error::invalid("d.toml", "toml", e.to_string()))?;
+        validate("d.toml", f.datum)
+    }
+
+    #[test]
+    fn a_3_2_1_frame_loads_and_counts_its_degrees_of_freedom() {
+        let d = parse(
+            r#"
+            [[datum]]
+            name = "A"
+            position = [0, 0, 0]
+            radius = 20
+            order = 1
+            [[datum]]
+            name = "B"
+            feature = "hole"
+            position = [100, 0, 0]
+            radius = 15
+            diameter = 10
+            order = 2
+            [[datum]]
+            name = "C"
+            feature = "slot"
+            position = [-100, 0, 0]
+            radius = 15
+            width = 8
+            length = 30
+            direction = [2, 0, 0]
+            order = 3
+            "#,
+        )
+        .expect("valid");
+        assert_eq!(
+            (level_dofs(&d, 1), level_dofs(&d, 2), level_dofs(&d, 3)),
+            (3, 2, 1)
+        );
+        assert_eq!(d[2].direction, Some([1.0, 0.0, 0.0]));
+    }
+
+    #[test]
+    fn bad_frames_name_the_datum_and_field() {
+        let cases = [
+            // A hole without a diameter.
+            ("feature = \"hole\"\norder = 2", "datum[0].diameter"),
+            // A feature without an order.
+            (
+                "feature = \"edge\"\ndirection = [1, 0, 0]",
+                "datum[0].order",
+            ),
+            // An order out of range.
+            ("order = 4", "datum[0].order"),
+            // A slot without a direction.
+            (
+                "feature = \"slot\"\nwidth = 8\nlength = 30\norder = 3",
+                "datum[0].direction",
+            ),
+            // A hole wider than the neighbourhood searched.
+            (
+                "feature = \"hole\"\ndiameter = 50\norder = 2",
+                "datum[0].radius",
+            ),
+        ];
+        for (extra, field) in cases {
+            let text =
+                format!("[[datum]]\nname = \"X\"\nposition = [0, 0, 0]\nradius = 20\n{extra}\n");
+            let e = parse(&text).expect_err(field).to_string();
+            assert!(e.contains(field), "{extra}: {e}");
+        }
+        let mixed = "[[datum]]\nname = \"A\"\nposition = [0, 0, 0]\nradius = 20\norder = 1\n[[datum]]\nname = \"B\"\nposition = [1, 0, 0]\nradius = 20\n";
+        assert!(parse(mixed)
+            .expect_err("mixed")
+            .to_string()
+            .contains("datum[1].order"));
+        let seven = "[[datum]]\nname = \"A\"\nposition = [0, 0, 0]\nradius = 20\norder = 1\ndofs = 5\n[[datum]]\nname = \"A2\"\nposition = [50, 0, 0]\nradius = 20\norder = 1\n[[datum]]\nname = \"B\"\nposition = [1, 0, 0]\nradius = 20\norder = 2\n";
+        assert!(parse(seven)
+            .expect_err("seven")
+            .to_string()
+            .contains("a rigid part has 6"));
+    }
+}

@@ -357,7 +357,8 @@ enum Command {
         /// CAD model (STL, binary or ASCII).
         #[arg(long)]
         cad: PathBuf,
-        /// Datum regions ([[datum]] name, position, radius); without them trusted regions are grown.
+        /// Datums ([[datum]] name, position, radius; with `order`, a 3-2-1 frame of surface, point,
+        /// hole, slot and edge features); without them trusted regions are grown.
         #[arg(long)]
         datums: Option<PathBuf>,
         /// Tolerance on |deviation|, mm.

@@ -91,6 +91,29 @@ pub fn run(
     for reason in &r.report.reasons {
         println!("  - {reason}");
     }
+    for d in &r.report.datums {
+        let Some(m) = &d.frame else { continue };
+        match (&m.error, m.measured) {
+            (Some(why), _) => println!("  datum {} ({:?}): not measured: {why}", d.name, m.feature),
+            (None, Some(p)) => println!(
+                "  datum {} ({:?}, order {}): at ({:.3}, {:.3}, {:.3}) mm, offset {:?} mm{}",
+                d.name,
+                m.feature,
+                m.order.unwrap_or(0),
+                p[0],
+                p[1],
+                p[2],
+                m.offset_mm
+                    .iter()
+                    .map(|o| (o * 1000.0).round() / 1000.0)
+                    .collect::<Vec<_>>(),
+                m.size_mm
+                    .map(|s| format!(", size {s:.3} mm"))
+                    .unwrap_or_default()
+            ),
+            (None, None) => {}
+        }
+    }
     println!(
         "wrote {}/deviation.ply, deviation.png, report.json",
         out.display()

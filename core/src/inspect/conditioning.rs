@@ -53,6 +53,32 @@ pub struct Conditioning {
     pub pinned: bool,
 }
 
+impl Direction {
+    /// The direction of a motion `v` (scaled rotation, then translation) of the given
+    /// `strength`: named by its dominant part, with the slide a `tolerance`-sized systematic
+    /// deviation could cause along it.
+    pub(super) fn new(v: &Vector6<f64>, strength: f64, tolerance: f64) -> Direction {
+        let rot = Vector3::new(v[0], v[1], v[2]);
+        let tra = Vector3::new(v[3], v[4], v[5]);
+        let (kind, axis) = if rot.norm_squared() > tra.norm_squared() {
+            ("rotation", rot.normalize())
+        } else {
+            ("translation", tra.normalize())
+        };
+        let strength = strength.max(0.0);
+        Direction {
+            kind: kind.into(),
+            axis: axis.into(),
+            strength,
+            slide_mm: if strength > 0.0 {
+                (tolerance / strength.sqrt()).min(1e6)
+            } else {
+                1e6
+            },
+        }
+    }
+}
+
 impl Conditioning {
     /// Sentences for the directions the surface does not pin (first: reasons the part is not
     /// measured) and those it pins weakly (second: warnings). With `prior` (the registration
@@ -128,26 +154,11 @@ pub fn analyse(
     let directions: Vec<Direction> = order
         .iter()
         .map(|&i| {
-            let v = eig.eigenvectors.column(i);
-            let rot = Vector3::new(v[0], v[1], v[2]);
-            let tra = Vector3::new(v[3], v[4], v[5]);
-            let (kind, axis) = if rot.norm_squared() > tra.norm_squared() {
-                ("rotation", rot.normalize())
-            } else {
-                ("translation", tra.normalize())
-            };
-            let strength = eig.eigenvalues[i].max(0.0);
-            let slide = if strength > 0.0 {
-                (tolerance / strength.sqrt()).min(1e6)
-            } else {
-                1e6
-            };
-            Direction {
-                kind: kind.into(),
-                axis: axis.into(),
-                strength,
-                slide_mm: slide,
-            }
+            Direction::new(
+                &Vector6::from_column_slice(eig.eigenvectors.column(i).as_slice()),
+                eig.eigenvalues[i],
+                tolerance,
+            )
         })
         .collect();
     let pinned = on.len() >= 6 && directions.iter().all(|d| d.strength >= UNPINNED_STRENGTH);

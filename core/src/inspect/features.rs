@@ -217,6 +217,8 @@ fn locate(
 ) -> Option<(f64, f64)> {
     let flat: Vec<[f64; 3]> = uv.iter().map(|(u, v)| [*u, *v, 0.0]).collect();
     let tree = crate::spatial::KdTree::new(&flat);
+    // At most 201 × 201 grid nodes and 200 enclosure checks, whatever the datum's sizes.
+    let step = step.max(reach / 100.0);
     let n = (reach / step).ceil() as i64;
     let mut cand: Vec<(f64, f64, f64)> = Vec::new();
     for i in -n..=n {
@@ -234,17 +236,20 @@ fn locate(
         }
     }
     cand.sort_by(|a, b| a.0.total_cmp(&b.0));
-    cand.into_iter().map(|(_, u, v)| (u, v)).find(|&(u, v)| {
-        let mut sectors = [false; 12];
-        for (pu, pv) in uv {
-            let (du, dv) = (pu - u, pv - v);
-            if du.hypot(dv) <= enclose {
-                let turn = dv.atan2(du) / std::f64::consts::TAU + 1.0;
-                sectors[(turn * 12.0) as usize % 12] = true;
+    cand.into_iter()
+        .take(200)
+        .map(|(_, u, v)| (u, v))
+        .find(|&(u, v)| {
+            let mut sectors = [false; 12];
+            for (pu, pv) in uv {
+                let (du, dv) = (pu - u, pv - v);
+                if du.hypot(dv) <= enclose {
+                    let turn = dv.atan2(du) / std::f64::consts::TAU + 1.0;
+                    sectors[(turn * 12.0) as usize % 12] = true;
+                }
             }
-        }
-        sectors.iter().all(|s| *s)
-    })
+            sectors.iter().all(|s| *s)
+        })
 }
 
 /// Angular bins of the first, coarse circle through a hole's edge.
@@ -664,6 +669,25 @@ mod tests {
                 m.position
             );
         }
+    }
+
+    #[test]
+    fn absurd_sizes_cost_bounded_work() {
+        // A 0.01 mm hole searched over 5 km: the grid and the enclosure checks are capped,
+        // so this answers at once (found or not) instead of walking 10^12 nodes.
+        let pts = sheet(4, 30.0, 2.0, |x, y| x.hypot(y) > 6.0);
+        let d = Datum {
+            diameter: Some(0.01),
+            ..datum(Feature::Hole, [0.0; 3], 5000.0)
+        };
+        let _ = measure(&d, &pts, Vector3::z());
+        let s = Datum {
+            width: Some(0.01),
+            length: Some(1e6),
+            direction: Some([1.0, 0.0, 0.0]),
+            ..datum(Feature::Slot, [0.0; 3], 5000.0)
+        };
+        let _ = measure(&s, &pts, Vector3::z());
     }
 
     #[test]

@@ -51,6 +51,8 @@ pub(super) struct FrameFit {
     pub iterations: usize,
     pub measurements: Vec<DatumMeasurement>,
     pub conditioning: Conditioning,
+    /// The last step moved the pose by less than 1e-6 mm.
+    pub converged: bool,
 }
 
 /// The cloud points (cloud frame) within each datum's search reach of where `pose`
@@ -109,8 +111,17 @@ pub(super) fn fit(
         / n)
         .sqrt()
         .max(1.0);
+    let measure_all = |hoods: &[Vec<[f64; 3]>], pose: &Pose| -> Vec<DatumRows> {
+        datums
+            .iter()
+            .zip(hoods)
+            .zip(&normals)
+            .map(|((d, hood), nrm)| datum_rows(d, hood, *nrm, cad, pose, &centre, spread))
+            .collect()
+    };
     let mut pose = start;
     let mut iterations = 0;
+    let mut converged = false;
     let mut solved = Vec::new();
     // Each datum's neighbourhood is gathered in the cloud frame around where the pose puts it,
     // again once the pose has moved (a sliding start can be tens of mm off along the surface).
@@ -129,13 +140,7 @@ pub(super) fn fit(
             hoods = gather(cloud, datums, &pose);
             gathered_at = pose;
         }
-        let rows_now: Vec<DatumRows> = datums
-            .iter()
-            .zip(&hoods)
-            .zip(&normals)
-            .map(|((d, hood), nrm)| datum_rows(d, hood, *nrm, cad, &pose, &centre, spread))
-            .collect();
-        let (x, dirs) = solve(datums, &rows_now);
+        let (x, dirs) = solve(datums, &measure_all(&hoods, &pose));
         solved = dirs;
         let omega = Vector3::new(x[0], x[1], x[2]) / spread;
         let t = Vector3::new(x[3], x[4], x[5]);
@@ -143,38 +148,16 @@ pub(super) fn fit(
         let delta = Pose::from_parts(Translation3::from(centre + t - rot * centre), rot);
         pose = delta * pose;
         if t.norm() < 1e-6 && omega.norm() * spread < 1e-6 {
+            converged = true;
             break;
         }
     }
     // The final measurement, at the converged pose.
-    let rows_now: Vec<DatumRows> = datums
-        .iter()
-        .zip(&hoods)
-        .zip(&normals)
-        .map(|((d, hood), nrm)| datum_rows(d, hood, *nrm, cad, &pose, &centre, spread))
-        .collect();
+    let rows_now = measure_all(&hoods, &pose);
     let total_rows = rows_now.iter().map(|r| r.rows.len()).sum();
     let mut directions: Vec<Direction> = solved
         .into_iter()
-        .map(|(v, strength)| {
-            let rot = Vector3::new(v[0], v[1], v[2]);
-            let tra = Vector3::new(v[3], v[4], v[5]);
-            let (kind, axis) = if rot.norm_squared() > tra.norm_squared() {
-                ("rotation", rot.normalize())
-            } else {
-                ("translation", tra.normalize())
-            };
-            Direction {
-                kind: kind.into(),
-                axis: axis.into(),
-                strength,
-                slide_mm: if strength > 0.0 {
-                    (tolerance / strength.sqrt()).min(1e6)
-                } else {
-                    1e6
-                },
-            }
-        })
+        .map(|(v, strength)| Direction::new(&v, strength, tolerance))
         .collect();
     directions.sort_by(|a, b| a.strength.total_cmp(&b.strength));
     let pinned =
@@ -183,6 +166,7 @@ pub(super) fn fit(
         pose,
         iterations,
         measurements: rows_now.into_iter().map(|r| r.measurement).collect(),
+        converged,
         conditioning: Conditioning {
             points: total_rows,
             centre: centre.into(),

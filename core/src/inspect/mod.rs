@@ -132,8 +132,15 @@ pub fn inspect(
     let framed = params.datums.iter().any(|d| d.order.is_some());
     let mut measurements = Vec::new();
     let mut frame_conditioning = None;
+    let mut frame_warning = None;
     let (pose, mode, trusted_fit, iterations) = if framed {
         let f = frame_from_contenders(cloud, &fit, cad, params, &contenders, alignment.as_mut());
+        if !f.converged {
+            frame_warning = Some(format!(
+                "the datum frame fit had not converged after {} iterations: the datums' features may disagree with each other",
+                f.iterations
+            ));
+        }
         measurements = f.measurements;
         frame_conditioning = Some(f.conditioning);
         (f.pose, "datum-frame", 0.0, f.iterations)
@@ -167,7 +174,7 @@ pub fn inspect(
             conditioning::analyse(&fit_cad, cad, near, params.tolerance)
         }
     };
-    let report = report::build(
+    let mut report = report::build(
         &points,
         &deviations,
         &pose,
@@ -183,6 +190,7 @@ pub fn inspect(
         coverage,
         non_finite,
     );
+    report.warnings.extend(frame_warning);
     tracing::info!(verdict = %report.verdict, rms = report.statistics.rms, mode, "inspected");
     Ok(Inspection {
         points,

@@ -5,7 +5,9 @@ merged, an error reply for a malformed request, a second scan, stored results qu
 
 Usage: zenoh_client.py ENDPOINT CELL SENSOR... ; exit status 0 when every check passed."""
 
+import faulthandler
 import json
+import os
 import sys
 import threading
 import time
@@ -15,6 +17,8 @@ import zenoh
 
 def main():
     endpoint, cell, sensors = sys.argv[1], sys.argv[2], sys.argv[3:]
+    # A stalled step prints every thread's stack and ends the client instead of hanging.
+    faulthandler.dump_traceback_later(240, exit=True)
     conf = zenoh.Config()
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
@@ -106,11 +110,24 @@ def main():
     assert stored[0].ok.payload.to_bytes().startswith(b"ply\n")
     health = list(session.get(f"ris/{cell}/health", timeout=5.0))
     assert health and health[0].ok is not None
-    print("health:", health[0].ok.payload.to_bytes().decode())
+    print("health:", health[0].ok.payload.to_bytes().decode(), flush=True)
     sub.undeclare()
     session.close()
-    print("1 passed, 0 failed")
+    print("1 passed, 0 failed", flush=True)
+    faulthandler.cancel_dump_traceback_later()
 
 
 if __name__ == "__main__":
-    main()
+    # A failed check must end the process: with a Zenoh session still open, the interpreter's
+    # own shutdown can wait forever on the session's threads, so the exit is immediate.
+    try:
+        main()
+        code = 0
+    except BaseException:  # noqa: BLE001 - every failure is reported the same way
+        import traceback
+
+        traceback.print_exc()
+        code = 1
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)

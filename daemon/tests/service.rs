@@ -8,7 +8,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 mod common;
-use common::free_port;
+use common::{free_port, output_within};
 
 fn repo() -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
@@ -60,22 +60,25 @@ fn independent_zenoh_client_scans_twice_then_sigterm_stops_cleanly() {
         let _ = risd.kill();
         panic!("risd never became ready: {:?}", log.join());
     }
-    let client = Command::new("python3")
-        .arg(repo().join("tests/zenoh_client.py"))
-        .args([&endpoint, "mock", "s1", "s2", "s3", "s4"])
-        .output()
-        .expect("client");
+    let client = output_within(
+        Command::new("python3")
+            .arg("-u")
+            .arg(repo().join("tests/zenoh_client.py"))
+            .args([&endpoint, "mock", "s1", "s2", "s3", "s4"]),
+        Duration::from_secs(300),
+    );
     let out = String::from_utf8_lossy(&client.stdout).into_owned();
     eprintln!("{out}{}", String::from_utf8_lossy(&client.stderr));
     // Our own client: `ris scan` writes what it receives; a refused request fails clearly.
     let received = tempfile::tempdir().expect("tmp");
     let ris_scan = |extra: &[&str]| {
-        Command::new(env!("CARGO_BIN_EXE_ris"))
-            .args(["scan", "--connect", &endpoint, "--cell", "mock", "--out"])
-            .arg(received.path())
-            .args(extra)
-            .output()
-            .expect("ris scan")
+        output_within(
+            Command::new(env!("CARGO_BIN_EXE_ris"))
+                .args(["scan", "--connect", &endpoint, "--cell", "mock", "--out"])
+                .arg(received.path())
+                .args(extra),
+            Duration::from_secs(180),
+        )
     };
     let scan_out = ris_scan(&["--sensor", "s1", "--sensor", "s2", "--tag", "ris scan"]);
     let refused = ris_scan(&["--sensor", "s9"]);

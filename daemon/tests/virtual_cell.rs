@@ -18,7 +18,7 @@ use ris_core::sim::{Scene, Simulator};
 use ris_daemon::commands::virtual_cell::start_rig;
 
 mod common;
-use common::{ask, client, free_port, states, wait_end, Risd};
+use common::{ask, client, free_port, output_within, states, wait_end, Risd, Watchdog};
 
 fn repo() -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
@@ -69,14 +69,20 @@ fn pair_state(h: &serde_json::Value, sensor: &str) -> String {
 
 #[test]
 fn risd_scans_the_virtual_cell_and_survives_a_lost_camera() {
+    let dog = Watchdog::arm("virtual_cell", Duration::from_secs(480));
     let ris = Path::new(env!("CARGO_BIN_EXE_ris"));
     let rig_file = repo().join("config/virtual-cell/rig.toml");
+    dog.stage("starting the virtual rig");
     let mut rig = start_rig(&rig_file, ris, None).expect("the virtual rig");
+    for pid in rig.pids() {
+        dog.watch(pid);
+    }
     let data = tempfile::tempdir().expect("tmp");
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
     let config = repo().join("config/virtual-cell.toml");
 
     // A projector monitor that does not exist fails start-up, naming it.
+    dog.stage("risd with a missing projector monitor");
     let bad_dir = tempfile::tempdir().expect("tmp");
     let cfg = repo().join("config").display().to_string();
     let text = std::fs::read_to_string(&config)
@@ -86,15 +92,16 @@ fn risd_scans_the_virtual_cell_and_survives_a_lost_camera() {
         .replace("\"mock-cell/", &format!("\"{}/mock-cell/", cfg));
     let bad = bad_dir.path().join("bad.toml");
     std::fs::write(&bad, text).expect("write");
-    let o = Command::new(env!("CARGO_BIN_EXE_risd"))
-        .arg("--config")
-        .arg(&bad)
-        .args(["--once", "--data-dir"])
-        .arg(bad_dir.path().join("data"))
-        .env("DISPLAY", &rig.display)
-        .env("NO_COLOR", "1")
-        .output()
-        .expect("risd");
+    let o = output_within(
+        Command::new(env!("CARGO_BIN_EXE_risd"))
+            .arg("--config")
+            .arg(&bad)
+            .args(["--once", "--data-dir"])
+            .arg(bad_dir.path().join("data"))
+            .env("DISPLAY", &rig.display)
+            .env("NO_COLOR", "1"),
+        Duration::from_secs(120),
+    );
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success());
     assert!(
@@ -102,6 +109,7 @@ fn risd_scans_the_virtual_cell_and_survives_a_lost_camera() {
         "the error names the sensor and the monitor: {err}"
     );
 
+    dog.stage("starting risd");
     let mut risd = Risd::start_env(
         &[
             "--config".as_ref(),
@@ -113,14 +121,19 @@ fn risd_scans_the_virtual_cell_and_survives_a_lost_camera() {
         ],
         &[("DISPLAY", &rig.display)],
     );
+    dog.watch(risd.pid());
     risd.wait_ready(Duration::from_secs(120));
 
     // An independent client scans (twice, the first inspecting the part).
-    let out = Command::new("python3")
-        .arg(repo().join("tests/zenoh_client.py"))
-        .args([&endpoint, "virtual", "s1", "s2", "s3", "s4"])
-        .output()
-        .expect("python3 tests/zenoh_client.py (the eclipse-zenoh package; .ci/run installs it)");
+    dog.stage("the Python client scans");
+    // (python3 with the eclipse-zenoh package; .ci/run installs it)
+    let out = output_within(
+        Command::new("python3")
+            .arg("-u")
+            .arg(repo().join("tests/zenoh_client.py"))
+            .args([&endpoint, "virtual", "s1", "s2", "s3", "s4"]),
+        Duration::from_secs(300),
+    );
     let text = String::from_utf8_lossy(&out.stdout);
     eprintln!("{text}{}", String::from_utf8_lossy(&out.stderr));
     assert!(
@@ -129,6 +142,7 @@ fn risd_scans_the_virtual_cell_and_survives_a_lost_camera() {
     );
 
     // The clouds lie on the scenes' surfaces.
+    dog.stage("checking the clouds");
     let mut scans: Vec<_> = std::fs::read_dir(data.path().join("scans"))
         .expect("scans")
         .flatten()
@@ -166,10 +180,13 @@ fn risd_scans_the_virtual_cell_and_survives_a_lost_camera() {
     assert!(off <= 0.1, "merged cloud {off} mm off the panel");
 
     // A camera disappears mid-scan.
+    dog.stage("opening a Zenoh session");
     let session = client(&endpoint);
+    dog.stage("subscribing to the scan states");
     let (_sub, st) = states(&session, "virtual");
     // Let the subscription reach risd before the scan starts publishing.
     std::thread::sleep(Duration::from_secs(1));
+    dog.stage("a scan that loses camera s2");
     let accepted = ask(&session, "ris/virtual/scan", Some(r#"{"inspect": false}"#));
     let reply: serde_json::Value =
         serde_json::from_str(accepted[0].as_ref().expect("accepted")).expect("json");
@@ -193,6 +210,7 @@ fn risd_scans_the_virtual_cell_and_survives_a_lost_camera() {
         }
     }
     rig.kill_camera(1);
+    dog.stage("waiting for the failed scan");
     let end = wait_end(&st, &id);
     assert_eq!(end["state"], "failed", "{end}");
     let reason = end["reason"].as_str().unwrap_or_default();
@@ -205,7 +223,11 @@ fn risd_scans_the_virtual_cell_and_survives_a_lost_camera() {
     assert_eq!(pair_state(&h, "s1"), "connected", "{h}");
 
     // It comes back: health shows it connected again, and the next scan succeeds.
+    dog.stage("camera s2 back");
     rig.restart_camera(ris, &rig_file, 1).expect("camera back");
+    for pid in rig.pids() {
+        dog.watch(pid);
+    }
     let t = Instant::now();
     while pair_state(&health(&session), "s2") != "connected" {
         assert!(
@@ -219,8 +241,10 @@ fn risd_scans_the_virtual_cell_and_survives_a_lost_camera() {
     let reply: serde_json::Value =
         serde_json::from_str(accepted[0].as_ref().expect("accepted")).expect("json");
     let id = reply["scan_id"].as_str().expect("id").to_string();
+    dog.stage("the scan after the reconnection");
     let end = wait_end(&st, &id);
     assert_eq!(end["state"], "done", "{end}");
+    dog.stage("SIGTERM");
     let (status, log) = risd.terminate();
     assert!(status.success(), "{log:#?}");
 }

@@ -34,7 +34,8 @@ pub struct SequenceParams {
     pub min_contrast: f32,
     /// Largest contrast-weighted |P + P̄ − W − B| / (W − B) of a Gray pair.
     pub max_pair_error: f32,
-    /// Wait between presentation and trigger (projector response, rolling displays).
+    /// Wait between presentation and trigger (projector response, rolling displays). A content
+    /// check that finds a wrong slide raises it for the recapture (see [`SequenceReport::settle_s`]).
     pub settle: Duration,
     /// How each exposure starts: `Software` (a trigger after the slide is presented) or
     /// `Hardware` (the projector's sync output on a camera line exposes at presentation).
@@ -100,6 +101,17 @@ pub struct SequenceReport {
     pub present_s: f64,
     /// Seconds from each trigger (or presentation, under a hardware trigger) to its frame.
     pub frame_wait_s: f64,
+    /// The settle time in use at the end, seconds: above the configured one when a late slide
+    /// (a projector slower than its settle time) had to be recaptured with a longer wait.
+    pub settle_s: f64,
+}
+
+/// The settle time after a recapture round found a wrong slide: tripled, at least 30 ms, at
+/// most 1 s (a slide that is late by more than a second is a fault, not a latency).
+fn raised_settle(settle: Duration) -> Duration {
+    (settle * 3)
+        .max(Duration::from_millis(30))
+        .min(Duration::from_secs(1))
 }
 
 /// Progress of a sequence.
@@ -134,6 +146,7 @@ struct Run<'a> {
     params: &'a SequenceParams,
     last_id: Option<u64>,
     reconnects_left: u32,
+    settle: Duration,
     report: SequenceReport,
 }
 
@@ -173,9 +186,11 @@ pub fn acquire(
         params,
         last_id: None,
         reconnects_left: params.reconnects,
+        settle: params.settle,
         report: SequenceReport::default(),
     };
     let result = run.record(slides, progress);
+    run.report.settle_s = run.settle.as_secs_f64();
     let _ = run.camera.stop();
     let (images, ids) = result?;
     let mut capture = CaptureSet::new(*layout, info.width, info.height);
@@ -208,6 +223,7 @@ pub fn acquire(
         retries = run.report.retries.len(),
         stale = run.report.stale_frames,
         reconnects = run.report.reconnects,
+        settle_ms = run.report.settle_s * 1e3,
         "sequence recorded"
     );
     Ok(Acquisition {
@@ -285,8 +301,16 @@ impl Run<'_> {
             let mut redo: Vec<usize> = bad.iter().map(|b| b.0).collect();
             redo.sort_unstable();
             redo.dedup();
+            // A slide that was not yet on screen when its frame was taken is the usual cause:
+            // the recapture waits longer after each presentation.
+            self.settle = raised_settle(self.settle);
             for (slot, reason) in &bad {
-                tracing::warn!(slide = %slides[*slot].name(), %reason, "content check failed; recapturing");
+                tracing::warn!(
+                    slide = %slides[*slot].name(),
+                    %reason,
+                    settle_ms = self.settle.as_secs_f64() * 1e3,
+                    "content check failed; recapturing with a longer settle time"
+                );
                 self.report
                     .retries
                     .push((slides[*slot].name(), reason.clone()));
@@ -395,8 +419,8 @@ impl Run<'_> {
                 shown.slot
             )));
         }
-        if !self.params.settle.is_zero() {
-            std::thread::sleep(self.params.settle);
+        if !self.settle.is_zero() {
+            std::thread::sleep(self.settle);
         }
         let mut frames: Vec<Frame> = Vec::with_capacity(self.params.average as usize);
         for k in 0..self.params.average.max(1) {
@@ -604,13 +628,15 @@ fn content_failures(
             bad.push((j, reason));
         }
     }
-    // Most pairs failing means the white or black frame itself is wrong.
+    // Most pairs failing means the white or black frame itself is wrong, or every slide was
+    // late: all of them are recaptured.
     if pairs > 0 && bad.len() / 2 > pairs / 2 {
         let reason = format!(
             "{} of {pairs} Gray pairs disagree with white + black: the white or black frame is wrong",
             bad.len() / 2
         );
-        return vec![(w, reason.clone()), (b, reason)];
+        bad.insert(0, (b, reason.clone()));
+        bad.insert(0, (w, reason));
     }
     bad
 }

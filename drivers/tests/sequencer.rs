@@ -132,6 +132,26 @@ fn each_transient_fault_is_detected_and_recovered() {
 }
 
 #[test]
+fn a_projector_slower_than_its_settle_time_is_recaptured_with_a_longer_wait() {
+    // Every slide reaches the screen 60 ms after it is shown: each first exposure sees the
+    // slide before it. The content checks find them, and the recapture waits long enough.
+    let mut b = bench(0.0);
+    b.faults.set_latency(std::time::Duration::from_millis(60));
+    let acq = run(&mut b, &params()).expect("sequence");
+    assert_exact(&b, &acq.capture);
+    assert!(!acq.report.retries.is_empty());
+    assert!(
+        (0.06..=1.0).contains(&acq.report.settle_s),
+        "settle {} s",
+        acq.report.settle_s
+    );
+    // Without the latency nothing is raised.
+    let mut b = bench(0.0);
+    let acq = run(&mut b, &params()).expect("sequence");
+    assert_eq!(acq.report.settle_s, 0.0);
+}
+
+#[test]
 fn duplicated_frames_are_drained_not_recorded() {
     let mut b = bench(0.0);
     b.faults.at(4, Fault::DuplicateFrame);
@@ -167,9 +187,9 @@ fn persistent_faults_fail_with_the_slide_and_reason() {
     }
     assert!(err.to_string().contains("did not come back"), "{err}");
 
-    // The projector keeps showing the wrong slide for one Gray pattern.
+    // The projector keeps showing the wrong slide from the fifth exposure on.
     let mut b = bench(0.0);
-    for i in 4..40 {
+    for i in 4..400 {
         b.faults.at(i, Fault::WrongPattern);
     }
     let err = run(&mut b, &params()).expect_err("must fail");

@@ -150,6 +150,14 @@ pub struct VirtualRig {
 }
 
 impl VirtualRig {
+    /// Process ids of Xvfb and the cameras.
+    pub fn pids(&self) -> Vec<u32> {
+        std::iter::once(&self.xvfb)
+            .chain(&self.cameras)
+            .map(Child::id)
+            .collect()
+    }
+
     /// Stop camera `i` (a camera that disappears).
     pub fn kill_camera(&mut self, i: usize) {
         if let Some(c) = self.cameras.get_mut(i) {

@@ -110,6 +110,11 @@ impl Risd {
         }
     }
 
+    /// The process id.
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
     /// Wait for "risd ready" in the log (panics with the log if it does not come).
     pub fn wait_ready(&mut self, limit: Duration) {
         if self.ready.recv_timeout(limit).is_err() {
@@ -161,17 +166,89 @@ impl Drop for Risd {
     }
 }
 
-/// A Zenoh client session connected to `endpoint` (retried for 30 s while risd starts).
+/// Run `command` to its end, at most `limit`: its output, or a panic with what it printed so
+/// far once it has been killed (a stalled child fails the test instead of hanging the suite).
+pub fn output_within(command: &mut Command, limit: Duration) -> std::process::Output {
+    use std::io::Read;
+    let mut child = command
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap_or_else(|e| panic!("{command:?}: {e}"));
+    let drain = |pipe: Option<Box<dyn Read + Send>>| {
+        std::thread::spawn(move || {
+            let mut bytes = Vec::new();
+            if let Some(mut p) = pipe {
+                let _ = p.read_to_end(&mut bytes);
+            }
+            bytes
+        })
+    };
+    let out = drain(
+        child
+            .stdout
+            .take()
+            .map(|p| Box::new(p) as Box<dyn Read + Send>),
+    );
+    let err = drain(
+        child
+            .stderr
+            .take()
+            .map(|p| Box::new(p) as Box<dyn Read + Send>),
+    );
+    let t = Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().expect("wait") {
+            break Some(s);
+        }
+        if t.elapsed() > limit {
+            let _ = child.kill();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let stdout = out.join().unwrap_or_default();
+    let stderr = err.join().unwrap_or_default();
+    match status {
+        Some(status) => std::process::Output {
+            status,
+            stdout,
+            stderr,
+        },
+        None => panic!(
+            "{command:?} did not end within {limit:?}; killed. It printed:\n{}{}",
+            String::from_utf8_lossy(&stdout),
+            String::from_utf8_lossy(&stderr)
+        ),
+    }
+}
+
+/// A Zenoh client session connected to `endpoint` (retried for 30 s while risd starts; an
+/// open that never returns fails the test after 60 s).
 pub fn client(endpoint: &str) -> zenoh::Session {
     let config = ris_daemon::service::zenoh_config("client", &[], &[endpoint.to_string()])
         .expect("client config");
-    let t = Instant::now();
-    loop {
-        match zenoh::open(config.clone()).wait() {
-            Ok(s) => return s,
-            Err(e) if t.elapsed() > Duration::from_secs(30) => panic!("no risd at {endpoint}: {e}"),
-            Err(_) => std::thread::sleep(Duration::from_millis(50)),
-        }
+    let (tx, rx) = std::sync::mpsc::channel();
+    let target = endpoint.to_string();
+    std::thread::spawn(move || {
+        let t = Instant::now();
+        let session = loop {
+            match zenoh::open(config.clone()).wait() {
+                Ok(s) => break Ok(s),
+                Err(e) if t.elapsed() > Duration::from_secs(30) => {
+                    break Err(format!("no risd at {target}: {e}"))
+                }
+                Err(_) => std::thread::sleep(Duration::from_millis(50)),
+            }
+        };
+        let _ = tx.send(session);
+    });
+    match rx.recv_timeout(Duration::from_secs(60)) {
+        Ok(Ok(s)) => s,
+        Ok(Err(e)) => panic!("{e}"),
+        Err(_) => panic!("opening a Zenoh session to {endpoint} did not return in 60 s"),
     }
 }
 
@@ -238,4 +315,90 @@ pub fn states(
         .wait()
         .expect("subscriber");
     (sub, rx)
+}
+
+/// Ends a test that stalls: past its limit it prints the stage it was in (uncaptured, so the CI
+/// log shows it), kills the processes it watches and exits the test process with failure.
+pub struct Watchdog {
+    state: std::sync::Arc<(std::sync::Mutex<Watched>, std::sync::Condvar)>,
+    started: Instant,
+}
+
+struct Watched {
+    stage: String,
+    pids: Vec<u32>,
+    done: bool,
+}
+
+impl Watchdog {
+    /// Start watching `test` for at most `limit`.
+    pub fn arm(test: &str, limit: Duration) -> Watchdog {
+        let state = std::sync::Arc::new((
+            std::sync::Mutex::new(Watched {
+                stage: "start".into(),
+                pids: Vec::new(),
+                done: false,
+            }),
+            std::sync::Condvar::new(),
+        ));
+        let shared = state.clone();
+        let test = test.to_string();
+        std::thread::spawn(move || {
+            let (lock, cv) = &*shared;
+            let Ok(guard) = lock.lock() else { return };
+            let Ok((w, timeout)) = cv.wait_timeout_while(guard, limit, |w| !w.done) else {
+                return;
+            };
+            if !timeout.timed_out() {
+                return;
+            }
+            uncaptured(&format!(
+                "{test}: stalled in stage \"{}\" for longer than {limit:?}; killing {:?} and ending the test process",
+                w.stage, w.pids
+            ));
+            for pid in &w.pids {
+                let _ = Command::new("kill")
+                    .args(["-KILL", &pid.to_string()])
+                    .status();
+            }
+            std::process::exit(101);
+        });
+        Watchdog {
+            state,
+            started: Instant::now(),
+        }
+    }
+
+    /// Name the stage the test enters (also printed, with the time since the start).
+    pub fn stage(&self, stage: &str) {
+        uncaptured(&format!(
+            "[{:6.1} s] {stage}",
+            self.started.elapsed().as_secs_f64()
+        ));
+        if let Ok(mut w) = self.state.0.lock() {
+            w.stage = stage.to_string();
+        }
+    }
+
+    /// Kill process `pid` too if the test stalls.
+    pub fn watch(&self, pid: u32) {
+        if let Ok(mut w) = self.state.0.lock() {
+            w.pids.push(pid);
+        }
+    }
+}
+
+impl Drop for Watchdog {
+    fn drop(&mut self) {
+        if let Ok(mut w) = self.state.0.lock() {
+            w.done = true;
+        }
+        self.state.1.notify_all();
+    }
+}
+
+/// A line on the test process's stderr that libtest does not capture.
+fn uncaptured(line: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr(), "{line}");
 }

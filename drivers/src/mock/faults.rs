@@ -45,6 +45,12 @@ impl FaultInjector {
         self.shared.lock().triggers
     }
 
+    /// A projector that puts each slide on screen `latency` after it was asked to (default 0):
+    /// an exposure before then sees the previous slide.
+    pub fn set_latency(&self, latency: std::time::Duration) {
+        self.shared.lock().latency = latency;
+    }
+
     /// Whether `reconnect` succeeds after a disconnect (default true).
     pub fn set_reconnectable(&self, yes: bool) {
         self.shared.lock().reconnectable = yes;

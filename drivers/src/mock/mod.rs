@@ -32,6 +32,10 @@ enum Source {
 struct State {
     slides: Vec<Slide>,
     showing: Option<usize>,
+    /// The slide shown before `showing`, and when `showing` was asked for (for a slow projector).
+    previous: Option<usize>,
+    shown_at: Option<std::time::Instant>,
+    latency: std::time::Duration,
     show_seq: u64,
     streaming: bool,
     trigger: TriggerMode,
@@ -108,6 +112,9 @@ fn pair(
         state: Mutex::new(State {
             slides: Vec::new(),
             showing: None,
+            previous: None,
+            shown_at: None,
+            latency: std::time::Duration::ZERO,
             show_seq: 0,
             streaming: false,
             trigger: TriggerMode::Software,
@@ -206,6 +213,17 @@ fn expose(shared: &Shared, st: &mut State, camera: &str) -> Result<()> {
             "triggered before the projector showed anything".into(),
         )
     })?;
+    let late = st.shown_at.is_some_and(|t| t.elapsed() < st.latency);
+    if let (true, Some(before)) = (late, st.previous) {
+        tracing::debug!(
+            camera,
+            index,
+            slot,
+            before,
+            "mock: the slide is not on screen yet"
+        );
+        slot = before;
+    }
     if fault == Some(Fault::WrongPattern) {
         slot = (slot + 1) % st.slides.len();
         tracing::debug!(
@@ -404,6 +422,7 @@ impl Projector for MockProjector {
         let mut st = self.shared.lock();
         st.slides = slides.to_vec();
         st.showing = None;
+        st.previous = None;
         Ok(())
     }
 
@@ -416,7 +435,9 @@ impl Projector for MockProjector {
                 format!("slide {slot} of {} loaded", st.slides.len()),
             ));
         }
+        st.previous = st.showing;
         st.showing = Some(slot);
+        st.shown_at = Some(std::time::Instant::now());
         st.show_seq += 1;
         let shown = Shown {
             slot,

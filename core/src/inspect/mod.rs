@@ -29,6 +29,7 @@ pub use report::{DatumResidual, Report, Statistics, NOT_MEASURED};
 
 use nalgebra::{Matrix6, Point3, UnitQuaternion, Vector3, Vector6};
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicU32, Ordering};
 
 use crate::mesh::SignedDistance;
 use crate::register::Pose;
@@ -388,48 +389,92 @@ fn fit_to_surface(
     max_iter: usize,
     weight: &(dyn Fn(&[f64; 3], f64) -> f64 + Sync),
 ) -> (Pose, usize) {
+    if pts.is_empty() {
+        return (pose, 0);
+    }
+    // Rotations about the points' centroid, scaled by their RMS radius: every unknown in mm
+    // and the strengths comparable with the conditioning report's.
+    let n = pts.len() as f64;
+    let centroid = pts
+        .iter()
+        .fold(Vector3::zeros(), |a, p| a + Vector3::from(*p))
+        / n;
+    let radius = (pts
+        .iter()
+        .map(|p| (Vector3::from(*p) - centroid).norm_squared())
+        .sum::<f64>()
+        / n)
+        .sqrt()
+        .max(1e-6);
+    // Each point's closest triangle of the previous iteration starts its next query.
+    let hints: Vec<AtomicU32> = pts.iter().map(|_| AtomicU32::new(u32::MAX)).collect();
+    let index: Vec<usize> = (0..pts.len()).collect();
     let mut it = 0;
     while it < max_iter {
         it += 1;
-        let eq = crate::register::accumulate(pts, |x| {
-            let p = (pose * Point3::from(*x)).coords;
-            let c = cad.query(&p)?;
+        let centre = (pose * Point3::from(centroid)).coords;
+        let eq = crate::register::accumulate(&index, |&i| {
+            let p = (pose * Point3::from(pts[i])).coords;
+            let c = cad.query_near(&p, hints[i].load(Ordering::Relaxed))?;
+            hints[i].store(c.triangle, Ordering::Relaxed);
             let w = weight(&p.into(), c.distance);
             if w <= 0.0 {
                 return None;
             }
             let nrm = c.normal;
-            let cr = p.cross(&nrm);
+            let r = (p - centre).cross(&nrm) / radius;
             Some((
-                Vector6::new(cr.x, cr.y, cr.z, nrm.x, nrm.y, nrm.z),
+                Vector6::new(r.x, r.y, r.z, nrm.x, nrm.y, nrm.z),
                 -(p - c.point).dot(&nrm),
                 w,
             ))
         });
-        let (ata, atb, n) = (eq.ata, eq.atb, eq.count);
-        if n < 6 {
+        if eq.count < 6 {
             break;
         }
-        // Levenberg damping: a direction the surface does not pin (a cylinder's axis, a
-        // near-quadric's slide) stays put instead of taking a huge step; a pinned one
-        // converges to the same pose.
-        let mut ata = ata;
-        let ridge = 1e-9 * ata.trace();
-        for k in 0..6 {
-            ata[(k, k)] += ridge;
-        }
-        let Some(ch) = ata.cholesky() else { break };
-        let x = ch.solve(&atb);
-        let delta = Pose::from_parts(
-            Vector3::new(x[3], x[4], x[5]).into(),
-            UnitQuaternion::from_scaled_axis(Vector3::new(x[0], x[1], x[2])),
-        );
+        let Some(x) = pinned_step(&eq.ata, &eq.atb, eq.count as f64) else {
+            break;
+        };
+        let omega = Vector3::new(x[0], x[1], x[2]) / radius;
+        let t = Vector3::new(x[3], x[4], x[5]);
+        // p ↦ R (p − centre) + centre + t
+        let rot = UnitQuaternion::from_scaled_axis(omega);
+        let delta = Pose::from_parts((centre - rot * centre + t).into(), rot);
         pose = delta * pose;
-        if delta.translation.vector.norm() < 1e-6 && delta.rotation.angle() < 1e-8 {
+        // Converged when no point within two radii moves by more than 10 nm.
+        if t.norm() + 2.0 * radius * omega.norm() < 1e-5 {
             break;
         }
     }
     (pose, it)
+}
+
+/// The Gauss–Newton step of normal equations (rotation columns in mm, `count` rows of weight
+/// ≤ 1) restricted to the directions the data pin: a direction of strength below
+/// [`UNPINNED_STRENGTH`] (a cylinder's axis, a plane's in-plane motions) does not move, so it
+/// keeps the starting pose instead of drifting on noise; every pinned direction, however weak
+/// (a gently curved panel's slide along itself), takes its full step. One step is capped at
+/// 50 mm of motion at the RMS radius.
+fn pinned_step(ata: &Matrix6<f64>, atb: &Vector6<f64>, count: f64) -> Option<Vector6<f64>> {
+    if !(ata.iter().all(|v| v.is_finite()) && atb.iter().all(|v| v.is_finite())) {
+        return None;
+    }
+    let eig = nalgebra::SymmetricEigen::new(ata / count);
+    let g = atb / count;
+    let mut x = Vector6::zeros();
+    for k in 0..6 {
+        let lambda = eig.eigenvalues[k];
+        if lambda >= UNPINNED_STRENGTH {
+            let v = eig.eigenvectors.column(k);
+            x += v * (v.dot(&g) / lambda);
+        }
+    }
+    const MAX_STEP_MM: f64 = 50.0;
+    let motion = x.norm();
+    if motion > MAX_STEP_MM {
+        x *= MAX_STEP_MM / motion;
+    }
+    Some(x)
 }
 
 /// Fit on the datum regions only (membership evaluated in the CAD frame as the pose moves).

@@ -94,7 +94,14 @@ impl SignedDistance {
 
     /// Signed distance of `p` to the mesh.
     pub fn query(&self, p: &Vec3) -> Option<Closest> {
-        let (tri, point, feature, d2) = self.bvh.closest(p, closest_on_triangle)?;
+        self.query_near(p, u32::MAX)
+    }
+
+    /// [`SignedDistance::query`] starting from triangle `hint` (e.g. the previous answer for
+    /// a point that moved a little, or a neighbouring point's): the same result, found faster
+    /// when the hint is close. `u32::MAX` or an index out of range is no hint.
+    pub fn query_near(&self, p: &Vec3, hint: u32) -> Option<Closest> {
+        let (tri, point, feature, d2) = self.bvh.closest(p, hint, closest_on_triangle)?;
         let mesh = self.bvh.mesh();
         let ids = mesh.triangles[tri as usize];
         let (normal, beyond_boundary) = match feature {
@@ -126,23 +133,40 @@ impl SignedDistance {
 
     /// Signed distances of many points (parallel); NaN for an empty mesh.
     pub fn query_all(&self, points: &[[f64; 3]]) -> Vec<f64> {
-        points
-            .par_iter()
-            .map(|p| self.query(&Vec3::from(*p)).map_or(f64::NAN, |c| c.distance))
-            .collect()
+        self.map_closest(points, |c| c.map_or(f64::NAN, |c| c.distance))
     }
 
     /// Deviations for inspection: signed distances, NaN where a point lies beyond the
     /// surface's open boundary (the CAD does not model it there, e.g. past a panel's rim).
     pub fn deviations(&self, points: &[[f64; 3]]) -> Vec<f64> {
-        points
-            .par_iter()
-            .map(|p| {
-                self.query(&Vec3::from(*p))
-                    .filter(|c| !c.beyond_boundary)
-                    .map_or(f64::NAN, |c| c.distance)
-            })
-            .collect()
+        self.map_closest(points, |c| {
+            c.filter(|c| !c.beyond_boundary)
+                .map_or(f64::NAN, |c| c.distance)
+        })
+    }
+
+    /// `f` of every point's closest point, in parallel over runs of consecutive points, each
+    /// query starting from the previous point's triangle (clouds are stored in scan order, so
+    /// neighbours in the list are neighbours on the surface).
+    fn map_closest(
+        &self,
+        points: &[[f64; 3]],
+        f: impl Fn(Option<Closest>) -> f64 + Sync,
+    ) -> Vec<f64> {
+        let mut out = vec![0.0; points.len()];
+        out.par_chunks_mut(1024)
+            .zip(points.par_chunks(1024))
+            .for_each(|(o, pts)| {
+                let mut hint = u32::MAX;
+                for (o, p) in o.iter_mut().zip(pts) {
+                    let c = self.query_near(&Vec3::from(*p), hint);
+                    if let Some(c) = &c {
+                        hint = c.triangle;
+                    }
+                    *o = f(c);
+                }
+            });
+        out
     }
 }
 
@@ -190,9 +214,12 @@ fn closest_on_triangle(p: &Vec3, a: &Vec3, b: &Vec3, c: &Vec3) -> (Vec3, Feature
 impl Bvh {
     /// Nearest triangle to `p` by best-first traversal with box-distance pruning, using
     /// `closest` for the point on a triangle: (triangle, point, feature, squared distance).
+    /// `hint` (a triangle index, or out of range for none) is tried first: its distance
+    /// bounds the search.
     fn closest<F: Copy>(
         &self,
         p: &Vec3,
+        hint: u32,
         closest: impl Fn(&Vec3, &Vec3, &Vec3, &Vec3) -> (Vec3, F),
     ) -> Option<(u32, Vec3, F, f64)> {
         if self.mesh().triangles.is_empty() || !p.iter().all(|c| c.is_finite()) {
@@ -200,6 +227,12 @@ impl Bvh {
         }
         let mut best: Option<(u32, Vec3, F, f64)> = None;
         let mut best_d2 = f64::INFINITY;
+        if (hint as usize) < self.mesh().triangles.len() {
+            let [a, b, c] = self.mesh().corners(hint as usize);
+            let (q, f) = closest(p, &a, &b, &c);
+            best_d2 = (p - q).norm_squared();
+            best = Some((hint, q, f, best_d2));
+        }
         let mut stack = [(0u32, 0.0f64); 64];
         let mut sp = 1usize;
         while sp > 0 {
@@ -288,9 +321,20 @@ mod tests {
                 .wrapping_add(1442695040888963407);
             (s >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
         };
+        let n = mesh.triangles.len() as f64;
         for _ in 0..500 {
             let p = Vec3::new(u(), u(), u()) * 80.0;
             let got = sd.query(&p).expect("non-empty");
+            // Any hint (near, far, none, out of range) gives the same distance and sign.
+            for hint in [
+                (0.5 * (u() + 1.0) * n) as u32,
+                got.triangle,
+                u32::MAX,
+                n as u32 + 7,
+            ] {
+                let h = sd.query_near(&p, hint).expect("non-empty");
+                assert!((h.distance - got.distance).abs() < 1e-12, "hint {hint}");
+            }
             let brute = (0..mesh.triangles.len())
                 .map(|t| {
                     let [a, b, c] = mesh.corners(t);

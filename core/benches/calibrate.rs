@@ -1,4 +1,5 @@
-//! Calibration speed: camera calibration of OpenCV's 13 VGA views (board detection included),
+//! Calibration speed: camera calibration of OpenCV's 13 VGA views and of 12 of them upscaled to
+//! 1600x1200 (board detection included),
 //! and a 9-layer 2 MP sensor session (1600x1200, the `session.toml` scene scaled; captures in
 //! memory, so decoding, detection and every fit are measured but not PNG reading).
 #![allow(missing_docs)] // criterion_group! generates an undocumented public function
@@ -41,7 +42,53 @@ fn camera(c: &mut Criterion) {
             calibrate_camera(&views, 25.0, 640, 480, &CameraParams::default()).expect("calibration")
         })
     });
+    // The comparison: 12 views of 1600x1200 (the first twelve, upscaled 2.5x
+    // bilinearly), board detection and calibration.
+    let big: Vec<(String, Vec<f32>)> = images[..12]
+        .iter()
+        .map(|(name, img)| {
+            (
+                name.clone(),
+                upscale(&img.to_levels(), 640, 480, 1600, 1200),
+            )
+        })
+        .collect();
+    g.bench_function("camera_12_views_1600x1200", |b| {
+        b.iter(|| {
+            let views: Vec<BoardView> = big
+                .par_iter()
+                .map(|(name, levels)| BoardView {
+                    name: name.clone(),
+                    corners: detect(levels, 1600, 1200, board, &DetectParams::default())
+                        .expect("board"),
+                })
+                .collect();
+            calibrate_camera(&views, 25.0, 1600, 1200, &CameraParams::default())
+                .expect("calibration")
+        })
+    });
     g.finish();
+}
+
+/// Bilinear resampling of a `w × h` image to `nw × nh` (pixel centres aligned, as OpenCV's
+/// `INTER_LINEAR`).
+fn upscale(levels: &[f32], w: usize, h: usize, nw: usize, nh: usize) -> Vec<f32> {
+    let (sx, sy) = (w as f64 / nw as f64, h as f64 / nh as f64);
+    let mut out = vec![0.0f32; nw * nh];
+    for y in 0..nh {
+        let fy = ((y as f64 + 0.5) * sy - 0.5).clamp(0.0, (h - 1) as f64);
+        let (y0, ty) = (fy.floor() as usize, (fy - fy.floor()) as f32);
+        let y1 = (y0 + 1).min(h - 1);
+        for x in 0..nw {
+            let fx = ((x as f64 + 0.5) * sx - 0.5).clamp(0.0, (w - 1) as f64);
+            let (x0, tx) = (fx.floor() as usize, (fx - fx.floor()) as f32);
+            let x1 = (x0 + 1).min(w - 1);
+            let top = levels[y0 * w + x0] * (1.0 - tx) + levels[y0 * w + x1] * tx;
+            let bottom = levels[y1 * w + x0] * (1.0 - tx) + levels[y1 * w + x1] * tx;
+            out[y * nw + x] = top * (1.0 - ty) + bottom * ty;
+        }
+    }
+    out
 }
 
 fn sensor(c: &mut Criterion) {

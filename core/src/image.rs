@@ -178,16 +178,22 @@ pub fn gaussian_blur(data: &[f32], width: usize, height: usize, sigma: f32) -> V
     let sum: f32 = kernel.iter().sum();
     kernel.iter_mut().for_each(|k| *k /= sum);
     let clamp = |i: isize, n: usize| i.clamp(0, n as isize - 1) as usize;
+    let pad = r as usize;
     let mut tmp = vec![0.0f32; data.len()];
+    // Each row padded with its edge values, then one multiply-add sweep per kernel tap (the
+    // same sums, in the same order, as a per-pixel dot product, but vectorised).
     tmp.par_chunks_mut(width)
         .zip(data.par_chunks(width))
-        .for_each(|(out, row)| {
-            for (x, o) in out.iter_mut().enumerate() {
-                *o = kernel
-                    .iter()
-                    .enumerate()
-                    .map(|(k, w)| w * row[clamp(x as isize + k as isize - r, width)])
-                    .sum();
+        .for_each_init(Vec::new, |padded, (out, row)| {
+            padded.clear();
+            padded.extend(std::iter::repeat_n(row[0], pad));
+            padded.extend_from_slice(row);
+            padded.extend(std::iter::repeat_n(row[width - 1], pad));
+            out.fill(0.0);
+            for (k, w) in kernel.iter().enumerate() {
+                for (o, s) in out.iter_mut().zip(&padded[k..k + width]) {
+                    *o += w * s;
+                }
             }
         });
     let mut out = vec![0.0f32; data.len()];

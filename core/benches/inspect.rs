@@ -52,7 +52,7 @@ fn panel_cloud(mesh: &TriangleMesh, n: usize) -> Vec<[f64; 3]> {
 
 fn bench(c: &mut Criterion) {
     let stl = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/mock-cell/panel.stl");
-    let mesh = TriangleMesh::load_stl(&stl).expect("panel.stl");
+    let mesh = TriangleMesh::load(&stl).expect("panel.stl");
     let cloud = panel_cloud(&mesh, 1_200_000);
     let cad = SignedDistance::new(mesh);
     let params = InspectParams {

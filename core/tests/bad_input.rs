@@ -92,7 +92,7 @@ fn degenerate_cad_is_refused_and_degenerate_triangles_dropped() {
         ("line.stl", vec![collinear, same]),
     ] {
         let p = write(dir.path(), name, &binary_stl(&tris));
-        let err = TriangleMesh::load_stl(&p).expect_err(name).to_string();
+        let err = TriangleMesh::load(&p).expect_err(name).to_string();
         assert!(
             err.contains(name) && err.contains("no usable triangle"),
             "{err}"
@@ -103,7 +103,7 @@ fn degenerate_cad_is_refused_and_degenerate_triangles_dropped() {
         "mixed.stl",
         &binary_stl(&[good, same, collinear]),
     );
-    let mesh = TriangleMesh::load_stl(&p).expect("mixed");
+    let mesh = TriangleMesh::load(&p).expect("mixed");
     assert_eq!(mesh.triangles.len(), 1);
     // An empty mesh (built in code) answers no closest point instead of panicking.
     let empty = SignedDistance::new(TriangleMesh::default());
@@ -278,7 +278,7 @@ proptest! {
         bytes.extend_from_slice(&count.to_le_bytes());
         bytes.extend_from_slice(&body);
         let p = write(dir.path(), "f.stl", &bytes);
-        if let Ok(m) = TriangleMesh::load_stl(&p) {
+        if let Ok(m) = TriangleMesh::load(&p) {
             prop_assert!(!m.triangles.is_empty());
             let sd = SignedDistance::new(m);
             let _ = sd.query(&[0.0, 0.0, 0.0].into());
@@ -290,7 +290,7 @@ proptest! {
         let dir = tempfile::tempdir().expect("tmp");
         let text = format!("solid x\n{}\nendsolid x\n", words.join(" "));
         let p = write(dir.path(), "a.stl", text.as_bytes());
-        let _ = TriangleMesh::load_stl(&p);
+        let _ = TriangleMesh::load(&p);
     }
 
     #[test]

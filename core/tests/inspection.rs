@@ -21,7 +21,7 @@ fn cad(dir: &std::path::Path) -> SignedDistance {
     let m = TriangleMesh::height_field(200, 150, (-200.0, 200.0), (-150.0, 150.0), surface);
     let path = dir.join("panel.stl");
     stl::write_binary(&path, &m).expect("stl");
-    SignedDistance::new(TriangleMesh::load_stl(&path).expect("load stl"))
+    SignedDistance::new(TriangleMesh::load(&path).expect("load stl"))
 }
 
 fn planted(x: f64, y: f64) -> f64 {

@@ -167,7 +167,7 @@ pub struct SensorSection {
 pub struct PartSection {
     /// Part id named by scan requests.
     pub id: String,
-    /// CAD model (binary or ASCII STL), cell frame.
+    /// CAD model (STL, binary or ASCII; PLY or OBJ mesh), cell frame.
     pub cad: PathBuf,
     /// Datums (`[[datum]] name, position, radius`, and for a 3-2-1 frame `order`, `feature`).
     #[serde(default)]
@@ -728,7 +728,7 @@ impl CellConfig {
             }
         }
         for p in &self.parts {
-            ris_core::mesh::TriangleMesh::load_stl(&p.cad)
+            ris_core::mesh::TriangleMesh::load(&p.cad)
                 .with_context(|| format!("part {}: CAD", p.id))?;
             if let Some(d) = &p.datums {
                 ris_core::inspect::load_datums(d)

@@ -204,7 +204,7 @@ pub struct Part {
 impl Part {
     /// Load the CAD model and datums of `config` and index the surface.
     pub fn prepare(config: &PartConfig) -> Result<Part> {
-        let mesh = TriangleMesh::load_stl(&config.cad)
+        let mesh = TriangleMesh::load(&config.cad)
             .with_context(|| format!("part {}: CAD {}", config.id, config.cad.display()))?;
         let datums = match &config.datums {
             Some(d) => load_datums(d).with_context(|| format!("part {}: datums", config.id))?,

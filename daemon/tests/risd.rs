@@ -233,8 +233,8 @@ fn once_scans_the_builtin_mock_cell() {
     );
     // The cell's part is that panel (its CAD vertices lie on the surface), so the inspection
     // passes with the sensors' noise and reports it.
-    let cad = ris_core::mesh::TriangleMesh::load_stl(&config_dir().join("mock-cell/panel.stl"))
-        .expect("cad");
+    let cad =
+        ris_core::mesh::TriangleMesh::load(&config_dir().join("mock-cell/panel.stl")).expect("cad");
     assert!(cad
         .vertices
         .iter()

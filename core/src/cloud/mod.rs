@@ -145,13 +145,13 @@ impl PointCloud {
 }
 
 #[derive(Clone, Copy, PartialEq)]
-enum Encoding {
+pub(crate) enum Encoding {
     Ascii,
     Le,
     Be,
 }
 
-fn type_size(t: &str) -> Option<usize> {
+pub(crate) fn type_size(t: &str) -> Option<usize> {
     Some(match t {
         "char" | "uchar" | "int8" | "uint8" => 1,
         "short" | "ushort" | "int16" | "uint16" => 2,
@@ -161,7 +161,7 @@ fn type_size(t: &str) -> Option<usize> {
     })
 }
 
-fn read_scalar(t: &str, b: &[u8], enc: Encoding) -> f64 {
+pub(crate) fn read_scalar(t: &str, b: &[u8], enc: Encoding) -> f64 {
     macro_rules! num {
         ($ty:ty, $n:expr) => {{
             let mut a = [0u8; $n];

@@ -1,8 +1,10 @@
-//! Triangle meshes: STL input (binary and ASCII), a bounding-volume hierarchy for ray casts and
-//! signed point-to-mesh distances.
+//! Triangle meshes: STL (binary and ASCII), PLY and OBJ input, a bounding-volume hierarchy for
+//! ray casts and signed point-to-mesh distances.
 
 mod bvh;
 mod distance;
+mod obj;
+mod ply;
 pub mod stl;
 
 pub use bvh::{Bvh, RayHit};
@@ -20,9 +22,28 @@ pub struct TriangleMesh {
 }
 
 impl TriangleMesh {
-    /// Read an STL file (binary or ASCII).
-    pub fn load_stl(path: &std::path::Path) -> crate::Result<TriangleMesh> {
-        stl::read(path)
+    /// Read a mesh in any supported format: STL (binary or ASCII), PLY (ASCII or binary, a
+    /// `vertex` and a `face` element; polygons split into fans) or Wavefront OBJ (`v` and `f`
+    /// lines; polygons split into fans). The format is recognised by content (`ply` magic, STL
+    /// size or `solid`, OBJ statements), whatever the extension.
+    pub fn load(path: &std::path::Path) -> crate::Result<TriangleMesh> {
+        let bytes = std::fs::read(path).map_err(|e| crate::Error::io(path, e))?;
+        let tris = if stl::is_binary(&bytes) {
+            stl::parse(&bytes)
+        } else if bytes.starts_with(b"ply") {
+            ply::parse(&bytes)
+        } else if obj::looks_like(&bytes) {
+            obj::parse(&bytes)
+        } else {
+            stl::parse(&bytes).map_err(|e| {
+                format!("{e}; the CAD formats read are STL (binary or ASCII), PLY and OBJ meshes")
+            })
+        }
+        .map_err(|message| crate::Error::Format {
+            path: path.to_path_buf(),
+            message,
+        })?;
+        stl::finish(path, tris)
     }
 
     /// Apply `p ↦ R (s p) + t` to every vertex.

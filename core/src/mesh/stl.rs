@@ -1,4 +1,4 @@
-//! STL reading, binary and ASCII, with vertices welded by exact position.
+//! STL reading, binary and ASCII, and the welding every mesh reader ends with.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -7,13 +7,9 @@ use super::TriangleMesh;
 use crate::geometry::Vec3;
 use crate::{Error, Result};
 
-pub(super) fn read(path: &Path) -> Result<TriangleMesh> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let bad = |m: String| Error::Format {
-        path: path.to_path_buf(),
-        message: m,
-    };
-    let tris = if is_binary(&bytes) {
+/// The triangles of an STL file's bytes (binary or ASCII), or why there are none.
+pub(super) fn parse(bytes: &[u8]) -> std::result::Result<Vec<[Vec3; 3]>, String> {
+    if is_binary(bytes) {
         let n = u32::from_le_bytes([bytes[80], bytes[81], bytes[82], bytes[83]]) as usize;
         let f = |o: usize| {
             f64::from(f32::from_le_bytes([
@@ -23,7 +19,7 @@ pub(super) fn read(path: &Path) -> Result<TriangleMesh> {
                 bytes[o + 3],
             ]))
         };
-        (0..n)
+        return Ok((0..n)
             .map(|i| {
                 let base = 84 + i * 50 + 12;
                 [0, 1, 2].map(|k| {
@@ -31,31 +27,40 @@ pub(super) fn read(path: &Path) -> Result<TriangleMesh> {
                     Vec3::new(f(o), f(o + 4), f(o + 8))
                 })
             })
-            .collect::<Vec<_>>()
-    } else {
-        let text = std::str::from_utf8(&bytes)
-            .map_err(|_| bad("neither binary STL nor ASCII text".into()))?;
-        let mut verts = Vec::new();
-        for (ln, line) in text.lines().enumerate() {
-            let mut it = line.split_whitespace();
-            if it.next() == Some("vertex") {
-                let xyz: Vec<f64> = it
-                    .map(|s| s.parse::<f64>())
-                    .collect::<std::result::Result<_, _>>()
-                    .map_err(|_| bad(format!("line {}: bad vertex", ln + 1)))?;
-                if xyz.len() != 3 {
-                    return Err(bad(format!("line {}: vertex needs 3 numbers", ln + 1)));
-                }
-                verts.push(Vec3::new(xyz[0], xyz[1], xyz[2]));
+            .collect());
+    }
+    let text = std::str::from_utf8(bytes).map_err(|_| {
+        "neither a binary STL (its size does not match its triangle count) nor text".to_string()
+    })?;
+    let mut verts = Vec::new();
+    for (ln, line) in text.lines().enumerate() {
+        let mut it = line.split_whitespace();
+        if it.next() == Some("vertex") {
+            let xyz: Vec<f64> = it
+                .map(|s| s.parse::<f64>())
+                .collect::<std::result::Result<_, _>>()
+                .map_err(|_| format!("line {}: bad vertex", ln + 1))?;
+            if xyz.len() != 3 {
+                return Err(format!("line {}: vertex needs 3 numbers", ln + 1));
             }
+            verts.push(Vec3::new(xyz[0], xyz[1], xyz[2]));
         }
-        if verts.len() % 3 != 0 {
-            return Err(bad(format!(
-                "{} vertices is not a whole number of triangles",
-                verts.len()
-            )));
-        }
-        verts.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
+    }
+    if verts.len() % 3 != 0 {
+        return Err(format!(
+            "{} vertices is not a whole number of triangles",
+            verts.len()
+        ));
+    }
+    Ok(verts.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+}
+
+/// A mesh from a triangle soup read from `path`: non-finite vertices refused, vertices welded,
+/// zero-area triangles left out with a warning, a mesh with none left refused.
+pub(super) fn finish(path: &Path, tris: Vec<[Vec3; 3]>) -> Result<TriangleMesh> {
+    let bad = |m: String| Error::Format {
+        path: path.to_path_buf(),
+        message: m,
     };
     if tris.is_empty() {
         return Err(bad("mesh has no triangles".into()));
@@ -109,7 +114,7 @@ pub(crate) fn weld(tris: Vec<[Vec3; 3]>) -> (TriangleMesh, usize) {
     (mesh, degenerate)
 }
 
-fn is_binary(bytes: &[u8]) -> bool {
+pub(super) fn is_binary(bytes: &[u8]) -> bool {
     if bytes.len() < 84 {
         return false;
     }

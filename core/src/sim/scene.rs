@@ -470,7 +470,7 @@ impl Scene {
                     let file_name = o.file.as_ref().ok_or_else(|| {
                         Error::invalid(ctx, f("file"), "a mesh needs an STL file")
                     })?;
-                    let mut mesh = TriangleMesh::load_stl(&base.join(file_name))?;
+                    let mut mesh = TriangleMesh::load(&base.join(file_name))?;
                     mesh.transform(&r, scale, &position);
                     Shape::Mesh(Box::new(Bvh::new(mesh)))
                 }

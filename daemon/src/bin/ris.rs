@@ -354,7 +354,7 @@ enum Command {
         /// Measured cloud (PLY).
         #[arg(long)]
         cloud: PathBuf,
-        /// CAD model (STL, binary or ASCII).
+        /// CAD model (STL, binary or ASCII; PLY or OBJ mesh)
         #[arg(long)]
         cad: PathBuf,
         /// Datums ([[datum]] name, position, radius; with `order`, a 3-2-1 frame of surface, point,

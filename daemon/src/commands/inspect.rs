@@ -11,7 +11,7 @@ use ris_core::inspect::{
 };
 use ris_core::mesh::{SignedDistance, TriangleMesh};
 
-/// Inspect `cloud` against `cad` (STL) and write the three outputs into `out`.
+/// Inspect `cloud` against `cad` (STL, PLY or OBJ mesh) and write the three outputs into `out`.
 pub fn run(
     cloud: &Path,
     cad: &Path,
@@ -28,8 +28,7 @@ pub fn run(
         PointCloud::read_ply(cloud).with_context(|| format!("reading {}", cloud.display()))?;
     // Points flagged outside their sensor's calibrated volume are not trusted to measure.
     let outside = c.drop_outside();
-    let mesh =
-        TriangleMesh::load_stl(cad).with_context(|| format!("reading CAD {}", cad.display()))?;
+    let mesh = TriangleMesh::load(cad).with_context(|| format!("reading CAD {}", cad.display()))?;
     let datums = match datums {
         Some(p) => load_datums(p).with_context(|| format!("reading datums {}", p.display()))?,
         None => Vec::new(),

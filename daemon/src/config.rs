@@ -156,6 +156,10 @@ pub struct SensorSection {
     /// Wait between a slide's presentation and its exposure, ms (projector response time).
     #[serde(default)]
     pub settle_ms: f64,
+    /// Longest wait for one frame after its trigger, ms (default 2000): long exposures, slow
+    /// links or software-rendered cameras need more.
+    #[serde(default = "frame_timeout")]
+    pub frame_timeout_ms: f64,
     /// The capture set a `replay` pair serves (a kept scan's `captures/<sensor>`).
     #[serde(default)]
     pub recording: Option<PathBuf>,
@@ -227,6 +231,9 @@ fn four() -> usize {
 fn exposure() -> f64 {
     10_000.0
 }
+fn frame_timeout() -> f64 {
+    2_000.0
+}
 
 /// Which kind of pair a sensor is.
 #[derive(Clone, Debug, PartialEq)]
@@ -272,6 +279,8 @@ pub struct SensorConfig {
     pub trigger: ris_drivers::TriggerMode,
     /// Wait between presentation and exposure.
     pub settle: std::time::Duration,
+    /// Longest wait for one frame.
+    pub frame_timeout: std::time::Duration,
 }
 
 /// A validated part.
@@ -540,6 +549,13 @@ impl CellConfig {
                     format!("{} must be within 0 … 10000 ms", s.settle_ms),
                 ));
             }
+            if !(s.frame_timeout_ms.is_finite() && (10.0..=120_000.0).contains(&s.frame_timeout_ms))
+            {
+                return Err(field(
+                    &f("frame_timeout_ms"),
+                    format!("{} must be within 10 … 120000 ms", s.frame_timeout_ms),
+                ));
+            }
             let trigger = match (s.trigger.as_deref(), &s.trigger_line) {
                 (None | Some("software"), None) => ris_drivers::TriggerMode::Software,
                 (None | Some("software"), Some(_)) => {
@@ -615,6 +631,7 @@ impl CellConfig {
                 gain_db: s.gain_db,
                 trigger,
                 settle: std::time::Duration::from_secs_f64(s.settle_ms / 1000.0),
+                frame_timeout: std::time::Duration::from_secs_f64(s.frame_timeout_ms / 1000.0),
             });
         }
         let mut parts: Vec<PartConfig> = Vec::new();

@@ -263,6 +263,7 @@ pub fn open(s: &SensorConfig, seed: u64) -> Result<Pair> {
         sequence: SequenceParams {
             trigger: s.trigger.clone(),
             settle: s.settle,
+            timeout: s.frame_timeout,
             ..SequenceParams::default()
         },
         exposure_us: s.exposure_us,

@@ -92,6 +92,7 @@ fn config_errors_name_the_field() {
         (&format!("{ok}device = \"/dev/video0\"\n"), "sensor[0].device"),
         (&format!("{ok}gain_db = -3.0\n"), "sensor[0].gain_db"),
         (&format!("{ok}settle_ms = 1e9\n"), "sensor[0].settle_ms"),
+        (&format!("{ok}frame_timeout_ms = 0\n"), "sensor[0].frame_timeout_ms"),
         (
             "[cell]\nname = \"c\"\n[[sensor]]\nname = \"s1\"\nbackend = \"replay\"\nscene = \"x.toml\"\n",
             "sensor[0].recording",

@@ -18,6 +18,7 @@ pub mod inspect;
 pub mod io;
 pub mod mask;
 pub mod mesh;
+pub mod omni;
 pub mod pattern;
 pub mod register;
 pub mod sensor;

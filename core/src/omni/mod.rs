@@ -1,0 +1,8 @@
+//! The omnidirectional sensor (Ch. 6, SPEC §13): a camera and a projector, each a pinhole behind
+//! a hyperbolic mirror, seeing a whole room around a robot in one shot.
+
+pub mod file;
+pub mod mirror;
+
+pub use file::{OmniFile, OmniSensor};
+pub use mirror::{Mirror, MirrorUnit, Ray};

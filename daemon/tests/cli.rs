@@ -1194,3 +1194,70 @@ fn camera_grab_from_the_mock_writes_frames_once_and_refuses_to_overwrite() {
         stderr(&o)
     );
 }
+
+#[test]
+fn ring_pattern_is_written_with_a_file_that_rebuilds_it() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("rings");
+    let o = ris(&[
+        "patterns",
+        "--rings",
+        "--projector",
+        "640x480",
+        "--center",
+        "320.5,236.0",
+        "--out",
+        out.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let img = ris_core::image::GrayImage::load(&out.join("rings.png")).expect("rings.png");
+    assert_eq!((img.width, img.height), (640, 480));
+    let levels = img.to_levels();
+    // SPEC §13's formula, evaluated here from rings.toml alone.
+    let text = std::fs::read_to_string(out.join("rings.toml")).expect("rings.toml");
+    let t: toml::Value = toml::from_str(&text).expect("toml");
+    let c = t["pattern"]["center"].as_array().expect("center");
+    let (cx, cy) = (c[0].as_float().expect("cx"), c[1].as_float().expect("cy"));
+    assert_eq!((cx, cy), (320.5, 236.0));
+    assert_eq!(t["pattern"]["profile"].as_str(), Some("gaussian"));
+    let rings = t["ring"].as_array().expect("rings");
+    assert!(rings.len() > 10, "{} rings", rings.len());
+    let f = |r: &toml::Value, k: &str| {
+        r[k].as_float()
+            .or_else(|| r[k].as_integer().map(|i| i as f64))
+            .expect(k)
+    };
+    let mut checked = 0;
+    for y in (0..480).step_by(7) {
+        for x in (0..640).step_by(5) {
+            let (dx, dy) = (x as f64 - cx, y as f64 - cy);
+            let (rho, theta) = ((dx * dx + dy * dy).sqrt(), dy.atan2(dx));
+            let v: f64 = rings
+                .iter()
+                .map(|r| {
+                    let g = (-0.5 * ((rho - f(r, "radius")) / f(r, "width")).powi(2)).exp();
+                    f(r, "intensity")
+                        * g
+                        * 0.5
+                        * (1.0 + (f(r, "frequency") * theta + f(r, "phase")).cos())
+                })
+                .sum();
+            let want = (255.0 * v.clamp(0.0, 1.0)).round();
+            let got = f64::from(levels[y * 640 + x]);
+            assert!((got - want).abs() <= 1.0, "({x}, {y}): {got} vs {want}");
+            checked += 1;
+        }
+    }
+    assert!(checked > 8000);
+    let bad = ris(&[
+        "patterns",
+        "--rings",
+        "--projector",
+        "640x480",
+        "--center",
+        "1,2,3",
+        "--out",
+        out.to_str().expect("utf8"),
+    ]);
+    assert!(!bad.status.success() && stderr(&bad).contains("--center"));
+}

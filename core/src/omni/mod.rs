@@ -3,6 +3,8 @@
 
 pub mod file;
 pub mod mirror;
+pub mod rings;
 
 pub use file::{OmniFile, OmniSensor};
 pub use mirror::{Mirror, MirrorUnit, Ray};
+pub use rings::RingPattern;

@@ -192,6 +192,12 @@ enum Command {
         /// Add the flat levels of the photo response (flat_000 … flat_250).
         #[arg(long)]
         flats: bool,
+        /// Write the omnidirectional projector's ring pattern instead (rings.png, rings.toml).
+        #[arg(long)]
+        rings: bool,
+        /// Centre of the rings, e.g. 511.5,383.5 (default: the image centre).
+        #[arg(long)]
+        center: Option<String>,
         /// Output directory.
         #[arg(long)]
         out: PathBuf,
@@ -444,9 +450,32 @@ fn main() -> Result<()> {
             row_step,
             no_rows,
             flats,
+            rings,
+            center,
             out,
         } => {
             let (width, height) = commands::parse_size(&projector)?;
+            if rings {
+                let center = match center {
+                    Some(c) => {
+                        let v: Vec<f64> = c
+                            .split(',')
+                            .map(|x| x.trim().parse::<f64>())
+                            .collect::<std::result::Result<_, _>>()
+                            .map_err(|_| anyhow::anyhow!("--center {c:?}: expected CX,CY"))?;
+                        anyhow::ensure!(v.len() == 2, "--center {c:?}: expected CX,CY");
+                        Some([v[0], v[1]])
+                    }
+                    None => None,
+                };
+                let n = commands::patterns::rings(width, height, center, &out)?;
+                println!(
+                    "wrote {n} rings for a {width}x{height} projector to {}",
+                    out.display()
+                );
+                return Ok(());
+            }
+            anyhow::ensure!(center.is_none(), "--center goes with --rings");
             anyhow::ensure!(
                 column_step >= 1 && row_step >= 1,
                 "--column-step and --row-step must be ≥ 1"

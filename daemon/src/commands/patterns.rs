@@ -24,3 +24,22 @@ pub fn run(layout: CodeLayout, with_rows: bool, flats: bool, out: &Path) -> Resu
     tracing::info!(count = patterns.len(), dir = %out.display(), "patterns written");
     Ok(patterns.len())
 }
+
+/// Write the omnidirectional projector's ring pattern (SPEC §13): `rings.png` and `rings.toml`,
+/// which states every ring so that the image can be rebuilt from it.
+pub fn rings(width: u32, height: u32, center: Option<[f64; 2]>, out: &Path) -> Result<usize> {
+    let center = center.unwrap_or([
+        (f64::from(width) - 1.0) / 2.0,
+        (f64::from(height) - 1.0) / 2.0,
+    ]);
+    let pattern = ris_core::omni::RingPattern::design(width, height, center)?;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let png = out.join("rings.png");
+    GrayImage::from_u8(width, height, pattern.render())
+        .save_png(&png)
+        .with_context(|| format!("writing {}", png.display()))?;
+    ris_core::io::write_toml(&out.join("rings.toml"), &pattern)
+        .with_context(|| format!("writing {}", out.join("rings.toml").display()))?;
+    tracing::info!(rings = pattern.ring.len(), dir = %out.display(), "ring pattern written");
+    Ok(pattern.ring.len())
+}

@@ -190,7 +190,7 @@ fn stl_ply_and_obj_meshes_read_to_the_same_surface_and_inspection() {
 #[test]
 fn malformed_meshes_are_refused_naming_what_is_wrong() {
     let dir = tempfile::tempdir().expect("tmp");
-    let cases: [(&str, &[u8], &str); 9] = [
+    let cases: [(&str, &[u8], &str); 10] = [
         (
             "missing.ply",
             b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n",
@@ -207,8 +207,15 @@ fn malformed_meshes_are_refused_naming_what_is_wrong() {
             "truncated",
         ),
         (
+            // 1000 binary vertices need 12 000 bytes; 16 are there.
+            "claims.ply",
+            b"ply\nformat binary_little_endian 1.0\nelement vertex 1000\nproperty float x\nproperty float y\nproperty float z\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00",
+            "truncated",
+        ),
+        (
+            // The vertices are whole; the face's list stops after one of its three indices.
             "short.ply",
-            b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00",
+            b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x03\x00\x00\x00\x00",
             "ends early",
         ),
         (

@@ -136,13 +136,26 @@ pub(super) fn parse(bytes: &[u8]) -> Result<Vec<[Vec3; 3]>, String> {
     }) {
         return Err("PLY: face has no vertex_indices list".into());
     }
-    // Every record takes at least one byte: a count beyond the bytes present is refused
-    // before anything is allocated.
+    // A count beyond what the bytes present can hold is refused before anything is allocated:
+    // a record takes at least its scalars and list counts in binary, and a character and a
+    // separator per property in ASCII.
     let available = bytes.len() - body_start;
+    let mut needed = 0usize;
     for e in &elements {
-        if e.count > available {
+        let least: usize = e
+            .properties
+            .iter()
+            .map(|p| match (encoding, p) {
+                (Encoding::Ascii, _) => 2,
+                (_, Property::Scalar { kind, .. }) => type_size(kind).unwrap_or(1),
+                (_, Property::List { count, .. }) => type_size(count).unwrap_or(1),
+            })
+            .sum::<usize>()
+            .max(1);
+        needed = needed.saturating_add(e.count.saturating_mul(least));
+        if needed > available + 1 {
             return Err(format!(
-                "PLY: truncated: the header claims {} {} records; the file has {available} bytes after the header",
+                "PLY: truncated: the header claims {} {} records, which need at least {needed} bytes with those before them; the file has {available} after the header",
                 e.count, e.name
             ));
         }

@@ -213,10 +213,10 @@ fn solve_normal(
     const CHUNK: usize = 4096;
     let parts: Vec<(DMatrix<f64>, DVector<f64>)> = (0..count.div_ceil(CHUNK))
         .into_par_iter()
-        .map(|c| {
+        .map(|chunk| {
             let (mut ata, mut atb) = (DMatrix::<f64>::zeros(n, n), DVector::<f64>::zeros(n));
             let mut row = vec![0.0; n];
-            for i in c * CHUNK..((c + 1) * CHUNK).min(count) {
+            for i in chunk * CHUNK..((chunk + 1) * CHUNK).min(count) {
                 if let Some(b) = rows(i, &mut row) {
                     for a in 0..n {
                         atb[a] += row[a] * b;

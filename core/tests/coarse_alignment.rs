@@ -2,7 +2,7 @@
 //! panels with features, seen from random poses (any rotation), 60–100 % of the part measured,
 //! with and without a planted deformation (a broad bulge and a local dent, up to a third of the
 //! area), noise 0.01–0.04 mm. Every case must put each point within 0.5 mm of where it is on
-//! the part (1.2 mm when deformed), measure the planted field within 0.10 mm RMS, pass when
+//! the part, deformed or not, measure the planted field within 0.10 mm RMS, pass when
 //! undeformed and fail with the dent's region when deformed, or say the case is ambiguous / not
 //! measured (at most 3 of 30).
 
@@ -108,6 +108,9 @@ fn parts_in_random_poses_with_partial_coverage_and_deformation_are_placed_right(
             &cad,
             &InspectParams {
                 tolerance: 0.3,
+                init: std::env::var("RIS_INIT_TRUE")
+                    .ok()
+                    .map(|_| sensor_from_cad.inverse()),
                 ..InspectParams::default()
             },
         )
@@ -135,20 +138,21 @@ fn parts_in_random_poses_with_partial_coverage_and_deformation_are_placed_right(
             }
             (s / n.max(1) as f64).sqrt()
         };
-        let align = rep
+        let align = rep.registration.alignment.as_ref();
+        let stability = rep
             .registration
-            .alignment
+            .stability
             .as_ref()
-            .expect("coarse alignment");
-        let said = rep.verdict == "not_measured" || align.ambiguous();
+            .map_or(f64::NAN, |s| s.shift_mm);
+        let said = rep.verdict == "not_measured" || align.is_some_and(|a| a.ambiguous());
         eprintln!(
-            "seed {seed}: {:.0}x{:.0} mm, {:.0} % seen, deformed {deformed}: verdict {}, location error {location:.3} mm, deviation RMS vs planted {dev_rms:.4} mm, alignment {:.3} (runner-up {:?}), regions {:?}, warnings {:?}",
+            "seed {seed}: {:.0}x{:.0} mm, {:.0} % seen, deformed {deformed}: verdict {}, location error {location:.3} mm (stability {stability:.3} mm), deviation RMS vs planted {dev_rms:.4} mm, alignment {:?} (runner-up {:?}), regions {:?}, warnings {:?}",
             2.0 * hx,
             2.0 * hy,
             100.0 * seen,
             rep.verdict,
-            align.best_score,
-            align.runner_up_score,
+            align.map(|a| a.best_score),
+            align.map(|a| a.runner_up_score),
             rep.regions_out_of_tolerance.iter().map(|g| g.centroid).collect::<Vec<_>>(),
             rep.warnings
         );
@@ -157,13 +161,8 @@ fn parts_in_random_poses_with_partial_coverage_and_deformation_are_placed_right(
             continue;
         }
         placed += 1;
-        // Undeformed: 0.5 mm everywhere. Deformed: the trusted-region fit still leans a little
-        // into a broad bulge (2 of 30 seeds at 0.65 and 1.03 mm at the far corner); bounded.
-        let limit = if deformed { 1.2 } else { 0.5 };
-        assert!(
-            location <= limit,
-            "seed {seed}: location error {location} mm"
-        );
+        // Deformed or not: a bulge must not pull the fit along the surface.
+        assert!(location <= 0.5, "seed {seed}: location error {location} mm");
         worst_deformed = worst_deformed.max(if deformed { location } else { 0.0 });
         assert!(dev_rms <= 0.10, "seed {seed}: deviation RMS {dev_rms} mm");
         if deformed {

@@ -6,10 +6,14 @@
 //! points of the mesh) using only *trusted* points: the datum regions when the part has datums;
 //! otherwise regions estimated from the curvature of the deviation field (flat where only a
 //! rigid misalignment acts) and trimmed iteratively (fit, drop points whose deviation departs
-//! from the trusted median by more than an annealed threshold, refit, until the set converges).
+//! from the trusted median by more than an annealed threshold, refit, until the set converges);
+//! regions the trimming left out rejoin when a rigid motion puts them back on the CAD with the
+//! rest (tile consensus), and the whole is repeated from the new pose until it stops moving.
+//! How far leaving out any one region moves the fit is reported as its stability.
 
 mod alignment;
 mod conditioning;
+mod consensus;
 mod coverage;
 mod datums;
 mod features;
@@ -17,6 +21,7 @@ mod frame;
 mod output;
 mod regions;
 mod report;
+mod stability;
 
 pub use alignment::Alignment;
 pub use conditioning::{analyse as conditioning, Conditioning, Direction, UNPINNED_STRENGTH};
@@ -26,6 +31,7 @@ pub use frame::DatumMeasurement;
 pub use output::{deviation_colour, write_deviation_ply, write_deviation_png};
 pub use regions::{out_of_tolerance_regions, Region};
 pub use report::{DatumResidual, Report, Statistics, NOT_MEASURED};
+pub use stability::Stability;
 
 use nalgebra::{Matrix6, Point3, UnitQuaternion, Vector3, Vector6};
 use rayon::prelude::*;
@@ -134,6 +140,7 @@ pub fn inspect(
     let mut measurements = Vec::new();
     let mut frame_conditioning = None;
     let mut frame_warning = None;
+    let mut stability = None;
     let (pose, mode, trusted_fit, iterations) = if framed {
         let f = frame_from_contenders(cloud, &fit, cad, params, &contenders, alignment.as_mut());
         if !f.converged {
@@ -146,7 +153,9 @@ pub fn inspect(
         frame_conditioning = Some(f.conditioning);
         (f.pose, "datum-frame", 0.0, f.iterations)
     } else if params.datums.is_empty() {
-        trusted_region_fit(&fit, cad, start, params)
+        let (pose, mode, frac, it, trusted) = trusted_region_fit(&fit, cad, start, params);
+        stability = stability::analyse(&trusted, cad, &pose);
+        (pose, mode, frac, it)
     } else {
         datum_fit(&fit, cad, start, params)
     };
@@ -187,6 +196,7 @@ pub fn inspect(
             conditioning,
             alignment,
             measurements,
+            stability,
         },
         coverage,
         non_finite,
@@ -508,7 +518,7 @@ fn trusted_region_fit(
     cad: &SignedDistance,
     start: Pose,
     params: &InspectParams,
-) -> (Pose, &'static str, f64, usize) {
+) -> (Pose, &'static str, f64, usize, Vec<[f64; 3]>) {
     let (mut pose, mut total) = fit_to_surface(pts, cad, start, 15, &|_, d| {
         if d.abs() < 5.0 {
             1.0
@@ -516,10 +526,6 @@ fn trusted_region_fit(
             0.0
         }
     });
-    // Seeds: points where the deviation field is locally flat (see `flat_seeds`); trimming
-    // below works inside them only.
-    let seeds = flat_seeds(pts, cad, &pose);
-    let mut trusted = seeds.clone();
     // Measurement noise from the local roughness of the deviation field (a point against the
     // mean of its neighbours): smooth deformation and misalignment cancel there, noise does not.
     let noise = {
@@ -529,43 +535,68 @@ fn trusted_region_fit(
     // The threshold anneals from half the tolerance down to three noise sigmas, so the trusted
     // set contracts onto the undeformed majority instead of settling on a compromise.
     let floor = (3.0 * noise).max(0.01);
-    let mut thr = 0.5 * params.tolerance;
-    for _round in 0..40 {
-        let dev = cad.query_all(&to_cad(pts, &pose));
-        let current: Vec<f64> = dev
-            .iter()
-            .zip(&trusted)
-            .filter(|(d, t)| **t && d.is_finite())
-            .map(|(d, _)| *d)
-            .collect();
-        let med = median(&current);
-        // Only seeds (flat neighbourhoods) may be trusted: growing into bent regions would let
-        // the deformation's tails pull the fit.
-        let next: Vec<bool> = dev
-            .iter()
-            .zip(&seeds)
-            .map(|(d, s)| *s && d.is_finite() && (d - med).abs() <= thr)
-            .collect();
-        let changed = next.iter().zip(&trusted).filter(|(a, b)| a != b).count();
-        if next.iter().filter(|t| **t).count() < 10 {
+    // Passes: seeds and trimming at the current pose, then the tiles the trimming left out
+    // that a rigid motion puts back on the CAD (see `consensus`); again from the new pose
+    // until it stops moving. Seeds taken once at a pose a deformation had pulled along the
+    // surface would exclude the very features that pin the slide.
+    let mut trusted = Vec::new();
+    for _pass in 0..4 {
+        let before = pose;
+        let seeds = flat_seeds(pts, cad, &pose);
+        trusted = seeds.clone();
+        let mut thr = 0.5 * params.tolerance;
+        for _round in 0..40 {
+            let dev = cad.query_all(&to_cad(pts, &pose));
+            let current: Vec<f64> = dev
+                .iter()
+                .zip(&trusted)
+                .filter(|(d, t)| **t && d.is_finite())
+                .map(|(d, _)| *d)
+                .collect();
+            let med = median(&current);
+            // Only seeds (flat neighbourhoods) may be trusted: growing into bent regions
+            // would let the deformation's tails pull the fit.
+            let next: Vec<bool> = dev
+                .iter()
+                .zip(&seeds)
+                .map(|(d, s)| *s && d.is_finite() && (d - med).abs() <= thr)
+                .collect();
+            let changed = next.iter().zip(&trusted).filter(|(a, b)| a != b).count();
+            if next.iter().filter(|t| **t).count() < 10 {
+                break;
+            }
+            trusted = next;
+            let set: Vec<[f64; 3]> = pts
+                .iter()
+                .zip(&trusted)
+                .filter(|(_, t)| **t)
+                .map(|(p, _)| *p)
+                .collect();
+            let (p, it) = fit_to_surface(&set, cad, pose, params.max_iterations, &|_, _| 1.0);
+            pose = p;
+            total += it;
+            if thr <= floor && changed * 1000 < pts.len() {
+                break;
+            }
+            thr = (thr * 0.7).max(floor);
+        }
+        if let Some((mask, p)) = consensus::admit(pts, &trusted, cad, &pose, noise) {
+            trusted = mask;
+            pose = p;
+        }
+        let turned = crate::register::rotation_angle_deg(&(pose * before.inverse()));
+        let shifted = (pose.translation.vector - before.translation.vector).norm();
+        if turned < 1e-3 && shifted < 5e-3 {
             break;
         }
-        trusted = next;
-        let set: Vec<[f64; 3]> = pts
-            .iter()
-            .zip(&trusted)
-            .filter(|(_, t)| **t)
-            .map(|(p, _)| *p)
-            .collect();
-        let (p, it) = fit_to_surface(&set, cad, pose, params.max_iterations, &|_, _| 1.0);
-        pose = p;
-        total += it;
-        if thr <= floor && changed * 1000 < pts.len() {
-            break;
-        }
-        thr = (thr * 0.7).max(floor);
     }
     tracing::debug!(noise, floor, "trusted-region fit");
-    let frac = trusted.iter().filter(|t| **t).count() as f64 / pts.len() as f64;
-    (pose, "trusted-region", frac, total)
+    let set: Vec<[f64; 3]> = pts
+        .iter()
+        .zip(&trusted)
+        .filter(|(_, t)| **t)
+        .map(|(p, _)| *p)
+        .collect();
+    let frac = set.len() as f64 / pts.len() as f64;
+    (pose, "trusted-region", frac, total, set)
 }

@@ -68,6 +68,9 @@ pub struct Registration {
     pub trusted_fraction: f64,
     /// How the starting pose was chosen (absent when an initial pose was given).
     pub alignment: Option<super::Alignment>,
+    /// How far leaving out any one part of the fitted surface moves the fit (trusted-region
+    /// fits).
+    pub stability: Option<super::Stability>,
 }
 
 /// The verdict that means the data cannot decide: too little of the part (or of a datum)
@@ -82,6 +85,7 @@ pub(super) struct Fit<'a> {
     pub conditioning: super::Conditioning,
     pub alignment: Option<super::Alignment>,
     pub measurements: Vec<super::DatumMeasurement>,
+    pub stability: Option<super::Stability>,
 }
 
 /// The report.
@@ -161,9 +165,15 @@ pub(super) fn build(
             100.0 * coverage.minimum
         ));
     }
-    let (unpinned, warnings) = fit
+    let (unpinned, mut warnings) = fit
         .conditioning
         .findings(params.tolerance, params.init.is_some());
+    if let Some(s) = fit.stability.as_ref().filter(|s| s.shift_mm > tol) {
+        warnings.push(format!(
+            "the registration leans on the surface around ({:.1}, {:.1}, {:.1}) mm: leaving it out moves the map up to {:.2} mm, so deviations may be placed that far from where they are",
+            s.worst_tile[0], s.worst_tile[1], s.worst_tile[2], s.shift_mm
+        ));
+    }
     if let Some(a) = fit.alignment.as_ref().filter(|a| a.ambiguous()) {
         unmeasured.push(format!(
             "ambiguous coarse alignment: a pose {:.1}° and {:.1} mm away puts {:.1} % of the points on the CAD against {:.1} % for the one used; give an initial pose or datums",
@@ -240,6 +250,7 @@ pub(super) fn build(
             iterations: fit.iterations,
             trusted_fraction: fit.trusted_fraction,
             alignment: fit.alignment,
+            stability: fit.stability,
         },
         conditioning: fit.conditioning,
         warnings,

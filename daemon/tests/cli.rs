@@ -469,6 +469,8 @@ fn inspect_writes_deviation_map_report_and_exit_status() {
         "a failing part exits with 3: {}",
         stderr(&o)
     );
+    // Its progress bar is drawn on a terminal only, never into a pipe.
+    assert!(!stderr(&o).contains("registering"), "{}", stderr(&o));
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).expect("report"))
             .expect("json");

@@ -24,17 +24,24 @@ pub fn run(
         tolerance.is_finite() && tolerance > 0.0,
         "--tolerance must be a positive number of mm, got {tolerance}"
     );
+    let bar = crate::progress::bar(5, "reading cloud");
     let mut c =
         PointCloud::read_ply(cloud).with_context(|| format!("reading {}", cloud.display()))?;
     // Points flagged outside their sensor's calibrated volume are not trusted to measure.
     let outside = c.drop_outside();
+    bar.inc(1);
+    bar.set_message("reading CAD");
     let mesh = TriangleMesh::load(cad).with_context(|| format!("reading CAD {}", cad.display()))?;
     let datums = match datums {
         Some(p) => load_datums(p).with_context(|| format!("reading datums {}", p.display()))?,
         None => Vec::new(),
     };
     let t = Instant::now();
+    bar.inc(1);
+    bar.set_message("indexing CAD");
     let sd = SignedDistance::new(mesh);
+    bar.inc(1);
+    bar.set_message("registering");
     let pts: Vec<[f64; 3]> = c
         .points
         .iter()
@@ -57,6 +64,8 @@ pub fn run(
         ));
     }
     let elapsed = t.elapsed();
+    bar.inc(1);
+    bar.set_message("writing");
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     write_deviation_ply(&out.join("deviation.ply"), &r.points, &r.deviations)?;
     write_deviation_png(
@@ -67,6 +76,7 @@ pub fn run(
     )?;
     let json = serde_json::to_string_pretty(&r.report)?;
     ris_core::io::write_atomic(&out.join("report.json"), json.as_bytes())?;
+    bar.finish_and_clear();
     let s = &r.report.statistics;
     if s.non_finite > 0 {
         println!(

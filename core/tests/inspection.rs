@@ -217,3 +217,99 @@ fn a_part_with_a_datum_out_of_tolerance_fails_and_says_so() {
             .in_tolerance
     );
 }
+
+/// The deviation map carries its numbers: verdict, title, statistics, mm ticks with the
+/// tolerance, each datum's residual and each region's peak, each label legible (its box shows
+/// exactly its text, nothing drawn over it) and where it belongs.
+#[test]
+fn the_deviation_map_is_labelled_with_what_a_reader_needs() {
+    use ris_core::inspect::{render_deviation_map, verdict_colour, MapTitle};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cad = cad(dir.path());
+    let (cloud, _, _) = measure(true);
+    let (_, r) = deviation_error(&cloud, &[0.0; 80_000], &cad, datums());
+    assert_eq!(r.report.verdict, "fail");
+    let title = MapTitle {
+        part: "door panel 7".into(),
+        scan: "20261123T101500.000Z-4".into(),
+        time: "2026-11-23 10:15:00 UTC".into(),
+    };
+    let map = render_deviation_map(&r.points, &r.deviations, &r.report, &datums(), &title);
+    let white = [255, 255, 255];
+    let find = |text: &str| {
+        map.labels
+            .iter()
+            .find(|l| l.text == text)
+            .unwrap_or_else(|| {
+                panic!(
+                    "no label {text:?} among {:?}",
+                    map.labels.iter().map(|l| &l.text).collect::<Vec<_>>()
+                )
+            })
+            .clone()
+    };
+    // Title and scan, legible on white.
+    assert!(map.shows(&find("door panel 7"), white));
+    assert!(map
+        .labels
+        .iter()
+        .any(|l| l.text.contains("20261123T101500.000Z-4")
+            && l.text.contains("2026-11-23 10:15:00 UTC")));
+    // The verdict, in white on its colour.
+    let verdict = find("FAIL");
+    assert!(map.shows(&verdict, verdict_colour("fail")));
+    // Statistics with the same numbers as the report.
+    let s = &r.report.statistics;
+    let stats = map
+        .labels
+        .iter()
+        .find(|l| l.text.starts_with("mean "))
+        .expect("statistics");
+    assert!(
+        stats.text.contains(&format!("RMS {:.3}", s.rms)),
+        "{}",
+        stats.text
+    );
+    assert!(stats
+        .text
+        .contains(&format!("{:.1} %", 100.0 * s.within_tolerance)));
+    assert!(map.shows(stats, white));
+    // Colour bar and histogram ticked in mm at ±1 and ±2 tolerances (0.5 mm) and 0; the
+    // tolerance named.
+    for text in ["+1.000", "+0.500", "0", "-0.500", "-1.000", "± 0.5 mm"] {
+        let n = map.labels.iter().filter(|l| l.text == text).count();
+        assert!(n >= 1, "{text}");
+        assert!(map.shows(&find(text), white), "{text}");
+    }
+    // The +0.5 tick label sits level with the bar's yellow/green boundary (where +tol is).
+    let tick = map
+        .labels
+        .iter()
+        .filter(|l| l.text == "+0.500")
+        .min_by_key(|l| l.y)
+        .expect("tick");
+    let bar_x = tick.x - 30;
+    let (above, below) = (
+        map.rgb[((tick.y as usize - 2) * map.width + bar_x as usize) * 3..][..3].to_vec(),
+        map.rgb[((tick.y as usize + 18) * map.width + bar_x as usize) * 3..][..3].to_vec(),
+    );
+    assert!(
+        above[0] == 255 && below[0] < 200,
+        "{above:?} above, {below:?} below +tol"
+    );
+    // Every datum named with its residual; every region flagged with its peak.
+    for (d, res) in datums().iter().zip(&r.report.datums) {
+        let label = find(&format!("{} RMS {:.3} mm", d.name, res.rms));
+        assert!(map.shows(&label, white), "{}", label.text);
+    }
+    for g in &r.report.regions_out_of_tolerance {
+        let label = find(&format!("{:+.3} mm", g.peak_deviation_mm));
+        assert!(map.shows(&label, white), "{}", label.text);
+    }
+    assert!(
+        map.labels
+            .iter()
+            .any(|l| l.text.ends_with(" mm") && l.text.len() <= 7),
+        "scale bar"
+    );
+}

@@ -14,7 +14,7 @@ use ris_core::capture::CaptureSet;
 use ris_core::cloud::{Merger, PointCloud};
 use ris_core::decode::{decode, DecodeParams};
 use ris_core::inspect::{
-    inspect, load_datums, write_deviation_ply, write_deviation_png, Datum, InspectParams,
+    inspect, load_datums, write_deviation_ply, write_deviation_png, Datum, InspectParams, MapTitle,
 };
 use ris_core::mesh::{SignedDistance, TriangleMesh};
 use ris_core::sensor::Reconstructor;
@@ -651,11 +651,21 @@ fn inspect_part(
         ));
     }
     write_deviation_ply(&dir.join("deviation.ply"), &r.points, &r.deviations)?;
+    let title = MapTitle {
+        part: part.id.clone(),
+        // The scan is written into `<id>.partial` and renamed when complete.
+        scan: dir.file_name().map_or_else(String::new, |n| {
+            n.to_string_lossy().trim_end_matches(".partial").to_string()
+        }),
+        time: utc_time(),
+    };
     write_deviation_png(
         &dir.join("deviation.png"),
         &r.points,
         &r.deviations,
-        part.tolerance,
+        &r.report,
+        &part.datums,
+        &title,
     )?;
     ris_core::io::write_atomic(
         &dir.join("report.json"),
@@ -678,6 +688,18 @@ fn inspect_part(
 /// A new scan id: UTC time to the millisecond plus a counter (`20261122T084921.028Z-0`), so
 /// ids sort by time.
 pub fn new_scan_id(counter: u64) -> String {
+    let (year, month, day, h, m, s, ms) = utc_now();
+    format!("{year:04}{month:02}{day:02}T{h:02}{m:02}{s:02}.{ms:03}Z-{counter}")
+}
+
+/// The UTC time now as people read it (`2026-11-22 08:49:21 UTC`).
+pub fn utc_time() -> String {
+    let (year, month, day, h, m, s, _) = utc_now();
+    format!("{year:04}-{month:02}-{day:02} {h:02}:{m:02}:{s:02} UTC")
+}
+
+/// UTC civil time: year, month, day, hours, minutes, seconds, milliseconds.
+fn utc_now() -> (i64, i64, i64, u64, u64, u64, u32) {
     let now = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .unwrap_or_default();
@@ -693,12 +715,14 @@ pub fn new_scan_id(counter: u64) -> String {
     let day = doy - (153 * mp + 2) / 5 + 1;
     let month = if mp < 10 { mp + 3 } else { mp - 9 };
     let year = yoe + era * 400 + i64::from(month <= 2);
-    format!(
-        "{year:04}{month:02}{day:02}T{:02}{:02}{:02}.{:03}Z-{counter}",
+    (
+        year,
+        month,
+        day,
         rem / 3600,
         rem / 60 % 60,
         rem % 60,
-        now.subsec_millis()
+        now.subsec_millis(),
     )
 }
 

@@ -12,6 +12,7 @@
 //! How far leaving out any one region moves the fit is reported as its stability.
 
 mod alignment;
+mod canvas;
 mod conditioning;
 mod consensus;
 mod coverage;
@@ -24,11 +25,15 @@ mod report;
 mod stability;
 
 pub use alignment::Alignment;
+pub use canvas::Label;
 pub use conditioning::{analyse as conditioning, Conditioning, Direction, UNPINNED_STRENGTH};
 pub use coverage::{coverage, Coverage};
 pub use datums::{level_dofs, load_datums, validate as validate_datums, Datum, Feature};
 pub use frame::DatumMeasurement;
-pub use output::{deviation_colour, write_deviation_ply, write_deviation_png};
+pub use output::{
+    deviation_colour, render_deviation_map, verdict_colour, write_deviation_ply,
+    write_deviation_png, DeviationMap, MapTitle,
+};
 pub use regions::{out_of_tolerance_regions, Region};
 pub use report::{DatumResidual, Report, Statistics, NOT_MEASURED};
 pub use stability::Stability;

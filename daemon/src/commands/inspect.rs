@@ -7,7 +7,7 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use ris_core::cloud::PointCloud;
 use ris_core::inspect::{
-    inspect, load_datums, write_deviation_ply, write_deviation_png, InspectParams, Report,
+    inspect, load_datums, write_deviation_ply, write_deviation_png, InspectParams, MapTitle, Report,
 };
 use ris_core::mesh::{SignedDistance, TriangleMesh};
 
@@ -52,7 +52,7 @@ pub fn run(
         &sd,
         &InspectParams {
             tolerance,
-            datums,
+            datums: datums.clone(),
             min_coverage,
             ..InspectParams::default()
         },
@@ -68,11 +68,18 @@ pub fn run(
     bar.set_message("writing");
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     write_deviation_ply(&out.join("deviation.ply"), &r.points, &r.deviations)?;
+    let title = MapTitle {
+        part: name_of(cad),
+        scan: name_of(cloud),
+        time: crate::scan::utc_time(),
+    };
     write_deviation_png(
         &out.join("deviation.png"),
         &r.points,
         &r.deviations,
-        tolerance,
+        &r.report,
+        &datums,
+        &title,
     )?;
     let json = serde_json::to_string_pretty(&r.report)?;
     ris_core::io::write_atomic(&out.join("report.json"), json.as_bytes())?;
@@ -128,4 +135,12 @@ pub fn run(
         out.display()
     );
     Ok(r.report)
+}
+
+/// A file's name for a title.
+fn name_of(p: &Path) -> String {
+    p.file_name().map_or_else(
+        || p.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    )
 }

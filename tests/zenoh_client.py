@@ -95,6 +95,7 @@ def main():
             assert seq[-1]["inspection"]["verdict"] == "pass", seq[-1]
             print(f"inspection: {report['verdict']}, RMS {st['rms']:.3f} mm, "
                   f"{st['points']} points, {st['beyond_cad']} beyond the CAD")
+            inspected = scan_id
         else:
             assert "inspecting" not in names and report is None, names
         for s in sensors + ["merged"]:
@@ -108,6 +109,14 @@ def main():
     stored = list(session.get(f"ris/{cell}/scans/{scan_id}/cloud/merged", timeout=10.0))
     assert len(stored) == 1 and stored[0].ok is not None, stored
     assert stored[0].ok.payload.to_bytes().startswith(b"ply\n")
+    # The inspected scan's page and labelled map are served too.
+    page = list(session.get(f"ris/{cell}/scans/{inspected}/page", timeout=10.0))
+    assert len(page) == 1 and page[0].ok is not None, page
+    html = page[0].ok.payload.to_bytes()
+    assert html.startswith(b"<!DOCTYPE html>") and b">PASS<" in html, html[:200]
+    png = list(session.get(f"ris/{cell}/scans/{inspected}/map", timeout=10.0))
+    assert len(png) == 1 and png[0].ok.payload.to_bytes().startswith(b"\x89PNG"), png
+    print(f"stored page {len(html)} bytes and map of {inspected}", flush=True)
     health = list(session.get(f"ris/{cell}/health", timeout=5.0))
     assert health and health[0].ok is not None
     print("health:", health[0].ok.payload.to_bytes().decode(), flush=True)

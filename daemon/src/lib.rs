@@ -8,6 +8,7 @@ pub mod commands;
 pub mod config;
 pub mod logging;
 pub mod notify;
+pub mod page;
 pub mod pair;
 pub mod progress;
 pub mod protocol;

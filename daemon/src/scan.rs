@@ -510,6 +510,9 @@ fn scan_into(
         serde_json::to_string_pretty(&report)?.as_bytes(),
     )
     .context("writing scan.json")?;
+    if report.inspection.is_some() {
+        crate::page::write_report_page(dir)?;
+    }
     Ok(report)
 }
 

@@ -108,8 +108,8 @@ fn sweep(data_dir: &Path, keep: u32, max_age_days: u32, partials: bool) -> Resul
 }
 
 /// The stored results of finished scans: (key, file) for `<id>/report` (the inspection report,
-/// else the scan's summary), `<id>/cloud/<sensor>` and `<id>/deviation` (the deviation cloud),
-/// and the ids. Blocking directory walk: run off the async runtime.
+/// else the scan's summary), `<id>/cloud/<sensor>`, `<id>/deviation` (the deviation cloud),
+/// `<id>/map` (the labelled deviation map, PNG) and `<id>/page` (`report.html`), and the ids. Blocking directory walk: run off the async runtime.
 pub fn stored_items(cell: &str, data_dir: &Path) -> (Vec<String>, Vec<(String, PathBuf)>) {
     let mut ids = Vec::new();
     let mut items = Vec::new();
@@ -129,6 +129,17 @@ pub fn stored_items(cell: &str, data_dir: &Path) -> (Vec<String>, Vec<(String, P
         if let Ok(files) = std::fs::read_dir(&dir) {
             for f in files.flatten() {
                 let name = f.file_name().to_string_lossy().into_owned();
+                match name.as_str() {
+                    "report.html" => {
+                        items.push((format!("ris/{cell}/scans/{id}/page"), f.path()));
+                        continue;
+                    }
+                    "deviation.png" => {
+                        items.push((format!("ris/{cell}/scans/{id}/map"), f.path()));
+                        continue;
+                    }
+                    _ => {}
+                }
                 match name.strip_suffix(".ply") {
                     Some("deviation") => {
                         items.push((format!("ris/{cell}/scans/{id}/deviation"), f.path()))

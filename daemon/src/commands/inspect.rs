@@ -83,6 +83,7 @@ pub fn run(
     )?;
     let json = serde_json::to_string_pretty(&r.report)?;
     ris_core::io::write_atomic(&out.join("report.json"), json.as_bytes())?;
+    crate::page::write_report_page(out)?;
     bar.finish_and_clear();
     let s = &r.report.statistics;
     if s.non_finite > 0 {

@@ -1263,3 +1263,42 @@ fn ring_pattern_is_written_with_a_file_that_rebuilds_it() {
     ]);
     assert!(!bad.status.success() && stderr(&bad).contains("--center"));
 }
+
+#[test]
+fn convert_takes_a_cloud_through_e57_and_back() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let mut cloud = ris_core::cloud::PointCloud::default();
+    for i in 0..3000 {
+        let t = f64::from(i) * 0.01;
+        cloud.points.push([
+            (300.0 * t.cos()) as f32,
+            (200.0 * t.sin()) as f32,
+            (850.0 + 10.0 * t) as f32,
+        ]);
+        cloud.confidence.push((i % 7) as f32 / 7.0);
+        cloud.outside.push(i % 11 == 0);
+    }
+    let a = dir.path().join("a.ply");
+    cloud.write_ply(&a).expect("ply");
+    let (e, b) = (dir.path().join("a.e57"), dir.path().join("b.ply"));
+    let o = ris(&["convert", s(&a), s(&e)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("3000 points, 273 flagged"));
+    let o = ris(&["convert", s(&e), s(&b)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let back = ris_core::cloud::PointCloud::read_ply(&b).expect("back");
+    assert_eq!(back.outside, cloud.outside);
+    assert_eq!(back.confidence, cloud.confidence);
+    for (p, q) in cloud.points.iter().zip(&back.points) {
+        for k in 0..3 {
+            assert!((p[k] - q[k]).abs() < 1e-3, "{p:?} {q:?}");
+        }
+    }
+    let o = ris(&["convert", s(&a), s(&dir.path().join("a.xyz"))]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("a.xyz") && stderr(&o).contains(".xyz"),
+        "{}",
+        stderr(&o)
+    );
+}

@@ -1,6 +1,7 @@
 //! Point clouds and PLY files (SPEC §2): written as binary little-endian `x y z confidence`
-//! float32; read from ASCII or binary PLY with float or double coordinates.
+//! float32; read from ASCII or binary PLY with float or double coordinates. E57 in `e57`.
 
+mod e57;
 mod merge;
 
 pub use merge::{merge, MergeStats, Merger};

@@ -395,6 +395,13 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Convert a point cloud between PLY and E57 (by the files' extensions; E57 in metres).
+    Convert {
+        /// Input cloud (.ply or .e57).
+        input: PathBuf,
+        /// Output cloud (.ply or .e57).
+        output: PathBuf,
+    },
     /// Rigidly register one point cloud onto another (ICP) and write the transform (TOML).
     Register {
         /// The reference cloud (PLY).
@@ -754,6 +761,9 @@ fn main() -> Result<()> {
             out,
         } => {
             commands::merge::run(&inputs, radius, &out)?;
+        }
+        Command::Convert { input, output } => {
+            commands::convert::run(&input, &output)?;
         }
         Command::Register {
             fixed,

@@ -1,0 +1,148 @@
+//! Point clouds as E57 (ASTM E2807), what laser-scanning and metrology tools open: one
+//! Data3D cloud with Cartesian coordinates in metres (the standard's unit; RIS works in mm),
+//! double precision, and the per-point confidence and calibrated-volume flag as attributes of
+//! the `ris` extension. Reading takes the first cloud of any E57 file: Cartesian coordinates
+//! of any storage type, the RIS attributes when present (confidence 1 otherwise).
+
+use std::io::Cursor;
+use std::path::Path;
+
+use e57::{E57Reader, E57Writer, Extension, Record, RecordDataType, RecordName, RecordValue};
+
+use super::PointCloud;
+use crate::io::write_atomic;
+use crate::{Error, Result};
+
+/// Namespace of the RIS point attributes.
+const NAMESPACE: &str = "ris";
+/// The extension's identifier (a URN: the attributes are described in the README).
+const URL: &str = "urn:ris:e57:point-attributes:1";
+const CONFIDENCE: &str = "confidence";
+const OUTSIDE: &str = "outsideVolume";
+
+fn named(name: &str) -> RecordName {
+    RecordName::Unknown {
+        namespace: NAMESPACE.into(),
+        name: name.into(),
+    }
+}
+
+fn format_error(path: &Path, e: impl std::fmt::Display) -> Error {
+    Error::Format {
+        path: path.to_path_buf(),
+        message: format!("E57: {e}"),
+    }
+}
+
+impl PointCloud {
+    /// The E57 file of this cloud, in memory.
+    pub fn to_e57(&self, name: &str) -> std::result::Result<Vec<u8>, e57::Error> {
+        let flagged = self.outside.len() == self.points.len() && !self.points.is_empty();
+        let guid = format!("ris-{name}-{}", self.points.len());
+        let mut buffer = Cursor::new(Vec::new());
+        let mut w = E57Writer::new(&mut buffer, &guid)?;
+        w.register_extension(Extension {
+            namespace: NAMESPACE.into(),
+            url: URL.into(),
+        })?;
+        let mut prototype = vec![
+            Record::CARTESIAN_X_F64,
+            Record::CARTESIAN_Y_F64,
+            Record::CARTESIAN_Z_F64,
+            Record {
+                name: named(CONFIDENCE),
+                data_type: RecordDataType::F32,
+            },
+        ];
+        if flagged {
+            prototype.push(Record {
+                name: named(OUTSIDE),
+                data_type: RecordDataType::Integer { min: 0, max: 1 },
+            });
+        }
+        let mut pc = w.add_pointcloud(&format!("{guid}-cloud"), prototype)?;
+        pc.set_name(Some(name.to_string()));
+        pc.set_description(Some("RIS point cloud (coordinates in metres)".into()));
+        for (i, p) in self.points.iter().enumerate() {
+            let mut values = vec![
+                RecordValue::Double(f64::from(p[0]) / 1000.0),
+                RecordValue::Double(f64::from(p[1]) / 1000.0),
+                RecordValue::Double(f64::from(p[2]) / 1000.0),
+                RecordValue::Single(self.confidence.get(i).copied().unwrap_or(1.0)),
+            ];
+            if flagged {
+                values.push(RecordValue::Integer(i64::from(self.outside[i])));
+            }
+            pc.add_point(values)?;
+        }
+        pc.finalize()?;
+        w.finalize()?;
+        drop(w);
+        Ok(buffer.into_inner())
+    }
+
+    /// Write an E57 file (see the module), atomically.
+    pub fn write_e57(&self, path: &Path) -> Result<()> {
+        let name = path
+            .file_stem()
+            .map_or_else(|| "cloud".to_string(), |s| s.to_string_lossy().into_owned());
+        let bytes = self.to_e57(&name).map_err(|e| format_error(path, e))?;
+        write_atomic(path, &bytes)
+    }
+
+    /// Read the first point cloud of an E57 file (coordinates converted to mm).
+    pub fn read_e57(path: &Path) -> Result<PointCloud> {
+        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        let mut r = E57Reader::new(Cursor::new(bytes)).map_err(|e| format_error(path, e))?;
+        let clouds = r.pointclouds();
+        let pc = clouds
+            .first()
+            .ok_or_else(|| format_error(path, "the file holds no point cloud"))?;
+        let find = |n: &RecordName| pc.prototype.iter().position(|rec| &rec.name == n);
+        let (Some(ix), Some(iy), Some(iz)) = (
+            find(&RecordName::CartesianX),
+            find(&RecordName::CartesianY),
+            find(&RecordName::CartesianZ),
+        ) else {
+            return Err(format_error(
+                path,
+                "the first point cloud has no Cartesian coordinates (spherical-only clouds are not read)",
+            ));
+        };
+        let ic = find(&named(CONFIDENCE));
+        let io = find(&named(OUTSIDE));
+        let invalid = find(&RecordName::CartesianInvalidState);
+        let types: Vec<RecordDataType> = pc.prototype.iter().map(|p| p.data_type.clone()).collect();
+        let mut cloud = PointCloud::default();
+        let reader = r.pointcloud_raw(pc).map_err(|e| format_error(path, e))?;
+        for values in reader {
+            let values = values.map_err(|e| format_error(path, e))?;
+            let get = |k: usize| -> Result<f64> {
+                values
+                    .get(k)
+                    .ok_or_else(|| {
+                        format_error(path, "a point has fewer values than its prototype")
+                    })?
+                    .to_f64(&types[k])
+                    .map_err(|e| format_error(path, e))
+            };
+            if let Some(k) = invalid {
+                if get(k)? != 0.0 {
+                    continue;
+                }
+            }
+            cloud.points.push([
+                (get(ix)? * 1000.0) as f32,
+                (get(iy)? * 1000.0) as f32,
+                (get(iz)? * 1000.0) as f32,
+            ]);
+            cloud
+                .confidence
+                .push(ic.map(get).transpose()?.unwrap_or(1.0) as f32);
+            if let Some(k) = io {
+                cloud.outside.push(get(k)? != 0.0);
+            }
+        }
+        Ok(cloud)
+    }
+}

@@ -471,6 +471,11 @@ fn inspect_writes_deviation_map_report_and_exit_status() {
     );
     // Its progress bar is drawn on a terminal only, never into a pipe.
     assert!(!stderr(&o).contains("registering"), "{}", stderr(&o));
+    // The page beside the report: the verdict, the embedded map, the datums, the files.
+    let page = std::fs::read_to_string(out.join("report.html")).expect("report.html");
+    assert!(page.contains("class=\"verdict fail\">FAIL<"));
+    assert!(page.contains("data:image/png;base64,") && page.contains("id=\"datums\""));
+    assert!(page.contains("href=\"deviation.ply\"") && page.contains("href=\"report.json\""));
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).expect("report"))
             .expect("json");

@@ -1,9 +1,9 @@
 //! Gray-code decoding (SPEC §5): camera pixel → continuous projector column (and row).
 //!
 //! Two passes, both data-parallel over image lines:
-//! 1. [`binarize`]: dual-projection binarization (or a mid-level threshold when the capture has
+//! 1. `binarize`: dual-projection binarization (or a mid-level threshold when the capture has
 //!    no inverses), Gray → binary, validity by contrast. Gives an integer code cell per pixel.
-//! 2. [`line_shift`]: along each camera line crossing the stripes, every boundary between code
+//! 2. `line_shift`: along each camera line crossing the stripes, every boundary between code
 //!    cells is located to sub-pixel precision where pattern and inverse cross (Eq. 4.17), and each
 //!    valid pixel's projector coordinate is interpolated between the edges around it.
 //!

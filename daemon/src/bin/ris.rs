@@ -148,7 +148,7 @@ enum CalibrateCommand {
         #[arg(long)]
         out: PathBuf,
     },
-    /// Each sensor's [to_common] from its measurement of a marker gauge (white 5 mm markers
+    /// Each sensor's to_common transform from its measurement of a marker gauge (white 5 mm markers
     /// with CMM-measured centres); sensor files are written only when every sensor passes.
     Cell {
         /// Gauge file: `radius` and `[[marker]] center` in the cell frame.
@@ -269,7 +269,7 @@ enum Command {
     /// Show a pattern full-screen on a projector (exact 1:1 pixels), or measure the present
     /// latency over a scan's sequence
     Project {
-        /// Pattern name (white, black, flat_LLL, gray_col_KK[_inv], gray_row_KK[_inv]).
+        /// Pattern name (white, black, flat_LLL, gray_col_KK, gray_col_KK_inv, gray_row_KK, gray_row_KK_inv).
         #[arg(long, default_value = "white")]
         pattern: String,
         /// Projector size (its native resolution), e.g. 1280x800.
@@ -317,7 +317,7 @@ enum Command {
         out: PathBuf,
     },
     /// Ask a running risd for a scan, follow its progress and write the clouds and report
-    /// into OUT/<scan id>/ (exit status 3 when the inspected part fails, 4 when it was not
+    /// into OUT/SCAN_ID/ (exit status 3 when the inspected part fails, 4 when it was not
     /// measured)
     Scan {
         /// Zenoh endpoint of the daemon.
@@ -363,7 +363,7 @@ enum Command {
         /// CAD model (STL, binary or ASCII; PLY or OBJ mesh)
         #[arg(long)]
         cad: PathBuf,
-        /// Datums ([[datum]] name, position, radius; with `order`, a 3-2-1 frame of surface, point,
+        /// Datums (datum tables: name, position, radius; with `order`, a 3-2-1 frame of surface, point,
         /// hole, slot and edge features); without them trusted regions are grown.
         #[arg(long)]
         datums: Option<PathBuf>,
@@ -383,7 +383,7 @@ enum Command {
     /// Calibration: the sensors' transforms into the cell frame.
     #[command(subcommand)]
     Calibrate(CalibrateCommand),
-    /// Merge sensor clouds into the cell frame (each sensor's [to_common]), de-duplicating overlaps.
+    /// Merge sensor clouds into the cell frame (each sensor's to_common transform), de-duplicating overlaps.
     Merge {
         /// Inputs as SENSOR.toml:CLOUD.ply.
         #[arg(required = true)]

@@ -1,5 +1,5 @@
 //! GigE Vision and USB3 Vision cameras through Aravis 0.8 (feature `aravis`, Debian
-//! `libaravis-dev`). [`AravisCamera`] implements [`ris_drivers::Camera`]: open by IP address
+//! `libaravis-dev`). `AravisCamera` implements [`ris_drivers::Camera`]: open by IP address
 //! (direct, no discovery broadcast), by device id, or Aravis's in-process fake camera; Mono8 and
 //! Mono16, region of interest, exposure, gain, software or hardware-line trigger, a stream with a
 //! buffer pool, frame ids and timestamps, packet size and inter-packet delay, timeouts and

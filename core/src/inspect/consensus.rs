@@ -11,7 +11,7 @@
 use nalgebra::{Point3, SymmetricEigen, Vector3};
 use rayon::prelude::*;
 
-use super::{fit_to_surface, median, to_cad};
+use super::{fit_to_surface, median, selected, to_cad};
 use crate::mesh::SignedDistance;
 use crate::register::Pose;
 
@@ -90,10 +90,7 @@ pub(super) fn admit(
     let mask: Vec<bool> = (0..pts.len())
         .map(|i| trusted[i] || chosen[tile[i]])
         .collect();
-    let set: Vec<[f64; 3]> = (0..pts.len())
-        .filter(|&i| mask[i])
-        .map(|i| pts[i])
-        .collect();
+    let set = selected(pts, &mask);
     let (joint, _) = fit_to_surface(&set, cad, *pose, 60, &all);
     Some((mask, joint))
 }

@@ -277,6 +277,15 @@ fn frame_from_contenders(
     tries.swap_remove(0).2
 }
 
+/// The points of `pts` whose entry in `mask` is set.
+fn selected(pts: &[[f64; 3]], mask: &[bool]) -> Vec<[f64; 3]> {
+    pts.iter()
+        .zip(mask)
+        .filter(|(_, m)| **m)
+        .map(|(p, _)| *p)
+        .collect()
+}
+
 /// `pts` mapped into the CAD frame by `pose`.
 fn to_cad(pts: &[[f64; 3]], pose: &Pose) -> Vec<[f64; 3]> {
     pts.par_iter()
@@ -545,6 +554,12 @@ fn trusted_region_fit(
     // until it stops moving. Seeds taken once at a pose a deformation had pulled along the
     // surface would exclude the very features that pin the slide.
     let mut trusted = Vec::new();
+    // A pass has converged when it moves the points' centroid by < 5 µm and turns < 0.001°.
+    let centroid = Point3::from(
+        pts.iter()
+            .fold(Vector3::zeros(), |a, p| a + Vector3::from(*p))
+            / pts.len().max(1) as f64,
+    );
     for _pass in 0..4 {
         let before = pose;
         let seeds = flat_seeds(pts, cad, &pose);
@@ -571,12 +586,7 @@ fn trusted_region_fit(
                 break;
             }
             trusted = next;
-            let set: Vec<[f64; 3]> = pts
-                .iter()
-                .zip(&trusted)
-                .filter(|(_, t)| **t)
-                .map(|(p, _)| *p)
-                .collect();
+            let set = selected(pts, &trusted);
             let (p, it) = fit_to_surface(&set, cad, pose, params.max_iterations, &|_, _| 1.0);
             pose = p;
             total += it;
@@ -590,18 +600,13 @@ fn trusted_region_fit(
             pose = p;
         }
         let turned = crate::register::rotation_angle_deg(&(pose * before.inverse()));
-        let shifted = (pose.translation.vector - before.translation.vector).norm();
+        let shifted = (pose * centroid - before * centroid).norm();
         if turned < 1e-3 && shifted < 5e-3 {
             break;
         }
     }
     tracing::debug!(noise, floor, "trusted-region fit");
-    let set: Vec<[f64; 3]> = pts
-        .iter()
-        .zip(&trusted)
-        .filter(|(_, t)| **t)
-        .map(|(p, _)| *p)
-        .collect();
+    let set = selected(pts, &trusted);
     let frac = set.len() as f64 / pts.len() as f64;
     (pose, "trusted-region", frac, total, set)
 }

@@ -248,9 +248,14 @@ pub fn render_deviation_map(
     // The map is 560–1100 px wide; points are drawn as squares as large as their spacing.
     let (du, dv) = ((u1 - u0).max(1e-9), (v1 - v0).max(1e-9));
     let spacing = (du * dv / n).sqrt();
-    let px = (spacing * 1.3).max(du / 1100.0).min(du / 560.0).max(1e-9);
+    // At most 1400 px tall whatever the part's outline.
+    let px = (spacing * 1.3)
+        .max(du / 1100.0)
+        .min(du / 560.0)
+        .max(dv / 1400.0)
+        .max(1e-9);
     let dot = ((spacing * 1.3 / px).ceil() as i64).clamp(1, 6);
-    let (mw, mh) = ((du / px) as i64 + 1, ((dv / px) as i64 + 1).min(1400));
+    let (mw, mh) = ((du / px) as i64 + 1, (dv / px) as i64 + 1);
     let pad = 24i64;
     let header = 96i64;
     let bar_w = 26i64;

@@ -57,6 +57,7 @@ fn non_finite_points_are_dropped_and_counted() {
         points: vec![[1.0, 0.0, 0.0], [f32::NAN, 0.0, 0.0]],
         confidence: vec![0.5, 0.7],
         pixels: vec![3, 4],
+        image: Some([4, 2]),
         outside: vec![],
     };
     assert_eq!(c.retain_finite(), 1);

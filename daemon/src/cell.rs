@@ -48,6 +48,7 @@ pub struct Cell {
     /// Parts in configuration order.
     pub parts: Vec<Part>,
     keep_captures: bool,
+    e57: bool,
 }
 
 impl Cell {
@@ -63,6 +64,7 @@ impl Cell {
             pairs: pair::open_all(config, seed)?,
             parts,
             keep_captures: config.storage.keep_captures,
+            e57: config.storage.e57,
         })
     }
 
@@ -80,6 +82,7 @@ impl Cell {
         let options = ScanOptions {
             only: job.sensors.as_deref(),
             keep_captures: self.keep_captures,
+            e57: self.e57,
             part: job.part.and_then(|i| self.parts.get(i)),
             tag: job.tag.as_deref(),
             mode: job.mode,

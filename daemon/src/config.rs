@@ -77,6 +77,9 @@ pub struct StorageSection {
     /// Also store each sensor's capture set.
     #[serde(default)]
     pub keep_captures: bool,
+    /// Also write every cloud as E57 (`<name>.e57`, metres) beside its PLY.
+    #[serde(default)]
+    pub e57: bool,
 }
 
 impl Default for StorageSection {
@@ -86,6 +89,7 @@ impl Default for StorageSection {
             keep_scans: fifty(),
             max_age_days: thirty(),
             keep_captures: false,
+            e57: false,
         }
     }
 }
@@ -184,6 +188,67 @@ pub struct PartSection {
     pub min_coverage: f64,
 }
 
+/// `[ros2]`: also publish every cloud as a ROS 2 `sensor_msgs/msg/PointCloud2` the way
+/// `rmw_zenoh` does (see `ros2`).
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Ros2Section {
+    /// Publish (default false).
+    #[serde(default)]
+    pub enable: bool,
+    /// The ROS domain (`ROS_DOMAIN_ID`), 0 … 232.
+    #[serde(default)]
+    pub domain_id: u32,
+    /// The node's namespace, which prefixes the topics (default `/ris`).
+    #[serde(default = "ros_namespace")]
+    pub namespace: String,
+    /// The node's name (default `risd`).
+    #[serde(default = "ros_node")]
+    pub node: String,
+    /// The tf frame of the merged cloud (default: the cell's name).
+    #[serde(default)]
+    pub frame_id: Option<String>,
+    /// The tf frame of each sensor's cloud, by sensor (default `<cell>_<sensor>`).
+    #[serde(default)]
+    pub sensor_frames: std::collections::BTreeMap<String, String>,
+}
+
+impl Default for Ros2Section {
+    fn default() -> Self {
+        Ros2Section {
+            enable: false,
+            domain_id: 0,
+            namespace: ros_namespace(),
+            node: ros_node(),
+            frame_id: None,
+            sensor_frames: Default::default(),
+        }
+    }
+}
+
+impl Ros2Section {
+    /// The tf frame of the merged cloud of `cell`.
+    pub fn cell_frame(&self, cell: &str) -> String {
+        self.frame_id.clone().unwrap_or_else(|| cell.to_string())
+    }
+
+    /// The tf frame of `sensor`'s cloud.
+    pub fn sensor_frame(&self, cell: &str, sensor: &str) -> String {
+        self.sensor_frames
+            .get(sensor)
+            .cloned()
+            .unwrap_or_else(|| format!("{cell}_{sensor}"))
+    }
+}
+
+/// Whether `s` is one token of a ROS 2 name: a letter or `_`, then letters, digits or `_`.
+fn ros_token(s: &str) -> bool {
+    s.chars()
+        .next()
+        .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+        && s.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+}
+
 /// A cell configuration file.
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -205,6 +270,9 @@ pub struct CellFile {
     /// Parts.
     #[serde(default)]
     pub part: Vec<PartSection>,
+    /// ROS 2 publication.
+    #[serde(default)]
+    pub ros2: Ros2Section,
 }
 
 fn peer() -> String {
@@ -221,6 +289,12 @@ fn thirty() -> u32 {
 }
 fn loopback() -> Vec<String> {
     vec!["tcp/127.0.0.1:7447".into()]
+}
+fn ros_namespace() -> String {
+    "/ris".into()
+}
+fn ros_node() -> String {
+    "risd".into()
 }
 fn half() -> f64 {
     0.5
@@ -313,6 +387,8 @@ pub struct CellConfig {
     pub sensors: Vec<SensorConfig>,
     /// Parts.
     pub parts: Vec<PartConfig>,
+    /// ROS 2 publication (validated: names are ROS 2 names when enabled).
+    pub ros2: Ros2Section,
 }
 
 /// Most scans that may wait in the queue.
@@ -686,6 +762,72 @@ impl CellConfig {
         }
         let mut storage = file.storage.clone();
         storage.data_dir = resolve(&storage.data_dir);
+        let ros2 = file.ros2.clone();
+        if ros2.domain_id > 232 {
+            return Err(field(
+                "ros2.domain_id",
+                format!("{} must be within 0 … 232", ros2.domain_id),
+            ));
+        }
+        for (k, frame) in ros2
+            .frame_id
+            .iter()
+            .map(|f| ("ros2.frame_id".to_string(), f))
+            .chain(
+                ros2.sensor_frames
+                    .iter()
+                    .map(|(s, f)| (format!("ros2.sensor_frames.{s}"), f)),
+            )
+        {
+            if frame.is_empty()
+                || frame.len() > 256
+                || frame.chars().any(|c| c.is_whitespace() || c.is_control())
+            {
+                return Err(field(&k, format!("{frame:?} is not a tf frame id")));
+            }
+        }
+        if let Some(s) = ros2
+            .sensor_frames
+            .keys()
+            .find(|s| !sensors.iter().any(|c| &c.name == *s))
+        {
+            return Err(field(
+                &format!("ros2.sensor_frames.{s}"),
+                "names no sensor of the cell".into(),
+            ));
+        }
+        if ros2.enable {
+            let ns_ok = ros2.namespace == "/"
+                || (ros2.namespace.starts_with('/')
+                    && ros2.namespace[1..].split('/').all(ros_token));
+            if !ns_ok {
+                return Err(field(
+                    "ros2.namespace",
+                    format!("{:?} is not a ROS 2 namespace such as /ris", ros2.namespace),
+                ));
+            }
+            if !ros_token(&ros2.node) {
+                return Err(field(
+                    "ros2.node",
+                    format!(
+                        "{:?} is not a ROS 2 node name (letters, digits, _)",
+                        ros2.node
+                    ),
+                ));
+            }
+            if !ros_token(&file.cell.name) {
+                return Err(field(
+                    "cell.name",
+                    format!("{:?} is part of the ROS 2 topics with [ros2] enabled: letters, digits and _, not starting with a digit", file.cell.name),
+                ));
+            }
+            if let Some(s) = sensors.iter().find(|s| !ros_token(&s.name)) {
+                return Err(field(
+                    "sensor.name",
+                    format!("{:?} is part of a ROS 2 topic with [ros2] enabled: letters, digits and _, not starting with a digit", s.name),
+                ));
+            }
+        }
         Ok(CellConfig {
             name: file.cell.name,
             zenoh,
@@ -693,6 +835,7 @@ impl CellConfig {
             workers: file.workers,
             sensors,
             parts,
+            ros2,
         })
     }
 

@@ -12,6 +12,7 @@ pub mod page;
 pub mod pair;
 pub mod progress;
 pub mod protocol;
+pub mod ros2;
 pub mod scan;
 pub mod service;
 pub mod store;

@@ -227,6 +227,8 @@ pub struct ScanOptions<'a> {
     pub only: Option<&'a [String]>,
     /// Keep the captured images under `captures/`.
     pub keep_captures: bool,
+    /// Also write every cloud as E57 beside its PLY.
+    pub e57: bool,
     /// Inspect the merged cloud against this part.
     pub part: Option<&'a Part>,
     /// Free text of the request, stored in `scan.json`.
@@ -352,6 +354,9 @@ fn scan_into(
             let mut written = Vec::new();
             for (name, cloud) in wrx {
                 let bytes = cloud.to_ply();
+                if options.e57 {
+                    write_e57(&cloud, dir, &name)?;
+                }
                 drop(cloud);
                 ris_core::io::write_atomic(&dir.join(format!("{name}.ply")), &bytes)
                     .with_context(|| format!("writing the cloud of {name}"))?;
@@ -459,6 +464,9 @@ fn scan_into(
             let bytes = merged.to_ply();
             ris_core::io::write_atomic(&dir.join("merged.ply"), &bytes)
                 .context("writing the merged cloud")?;
+            if options.e57 {
+                write_e57(&merged, dir, "merged")?;
+            }
             Ok((merged, done, (m0, secs()), bytes))
         })();
         let mut clouds = writer
@@ -526,6 +534,13 @@ struct Recorded {
 }
 
 /// Record one pair: the Gray sequence, or the adaptive loop (its exposure restored after).
+/// Write `<dir>/<name>.e57` (metres; an organised cloud keeps its camera pixels).
+fn write_e57(cloud: &PointCloud, dir: &Path, name: &str) -> Result<()> {
+    cloud
+        .write_e57(&dir.join(format!("{name}.e57")))
+        .with_context(|| format!("writing the E57 cloud of {name}"))
+}
+
 fn acquire_pair(
     p: &mut Pair,
     mode: ScanMode,

@@ -141,12 +141,19 @@ pub fn zenoh_config(mode: &str, listen: &[String], connect: &[String]) -> Result
 /// Zenoh authentication and access control for `cell` (SPEC §12 keys): operators may query
 /// `scan`; operators and readers may query health and stored scans, subscribe to the cell's
 /// publications and see its liveliness; everything else, publishing under `ris/<cell>/**`
-/// included, is denied.
+/// included, is denied. `ros2` adds the cell's ROS 2 topics and liveliness tokens (see
+/// [`crate::ros2::acl_keys`]) to what users may follow.
 pub fn apply_access(
     config: &mut zenoh::Config,
     cell: &str,
     access: &crate::config::AccessSection,
+    ros2: (Vec<String>, Vec<String>),
 ) -> Result<()> {
+    let (ros_data, ros_alive) = ros2;
+    let follow: Vec<String> = std::iter::once(format!("ris/{cell}/**"))
+        .chain(ros_data)
+        .collect();
+    let alive: Vec<String> = std::iter::once(health_key(cell)).chain(ros_alive).collect();
     let both: Vec<&String> = access.operators.iter().chain(&access.readers).collect();
     let mut subjects = Vec::new();
     let mut policies = Vec::new();
@@ -169,12 +176,12 @@ pub fn apply_access(
              "messages": ["query", "reply"],
              "key_exprs": [health_key(cell), format!("ris/{cell}/scans/**")]},
             {"id": "follow", "permission": "allow", "flows": ["ingress"],
-             "messages": ["declare_subscriber"], "key_exprs": [format!("ris/{cell}/**")]},
+             "messages": ["declare_subscriber"], "key_exprs": follow},
             {"id": "follow-out", "permission": "allow", "flows": ["egress"],
-             "messages": ["put"], "key_exprs": [format!("ris/{cell}/**")]},
+             "messages": ["put"], "key_exprs": follow},
             {"id": "alive", "permission": "allow", "flows": ["ingress", "egress"],
              "messages": ["liveliness_query", "declare_liveliness_subscriber", "liveliness_token", "reply"],
-             "key_exprs": [health_key(cell)]},
+             "key_exprs": alive},
         ],
         "subjects": subjects,
         "policies": policies,
@@ -241,7 +248,7 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
     let z = &config.zenoh;
     let mut zc = zenoh_config(&z.mode, &z.listen, &z.connect)?;
     if let Some(access) = &z.access {
-        apply_access(&mut zc, &cell, access)?;
+        apply_access(&mut zc, &cell, access, crate::ros2::acl_keys(&config))?;
     } else if z.listen.iter().any(|e| !is_loopback(e)) {
         tracing::warn!(listen = ?z.listen, "the cell listens beyond loopback without [zenoh.access]: anyone who reaches it may scan and read");
     }
@@ -268,6 +275,13 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
             rivals.join(", ")
         ));
     }
+    let ros2 = match crate::ros2::Bridge::declare(&session, &config).await {
+        Ok(b) => b.map(Arc::new),
+        Err(e) => {
+            let _ = session.close().await;
+            return Err(e);
+        }
+    };
     let status = Arc::new(Mutex::new(Status {
         state: "preparing".into(),
         sensors: config.sensors.iter().map(|s| s.name.clone()).collect(),
@@ -344,6 +358,7 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
                     data_dir.clone(),
                     config.storage.clone(),
                 );
+                let w_ros2 = ros2.clone();
                 let (Some(rx), Some(gone)) = (rx.take(), worker_gone_tx.take()) else {
                     break Err(anyhow!("the scan worker was started twice"));
                 };
@@ -358,6 +373,7 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
                             cell: &w_cell,
                             data_dir: &w_data_dir,
                             storage: &storage,
+                            ros2: w_ros2.as_deref(),
                         };
                         worker_loop(rx, cell_ready, &ctx);
                         drop(gone);
@@ -420,6 +436,7 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
     drop(store_q);
     drop(health);
     drop(token);
+    drop(ros2);
     session
         .close()
         .await
@@ -528,6 +545,7 @@ struct WorkerContext<'a> {
     cell: &'a str,
     data_dir: &'a Path,
     storage: &'a crate::config::StorageSection,
+    ros2: Option<&'a crate::ros2::Bridge>,
 }
 
 fn worker_loop(rx: mpsc::Receiver<Job>, mut cell: Cell, ctx: &WorkerContext) {
@@ -644,6 +662,9 @@ fn run_job(job: Job, cell_: &mut Cell, ctx: &WorkerContext) {
                 {
                     tracing::warn!(%key, error = %e, "publication failed");
                 }
+            }
+            if let Some(bridge) = ctx.ros2 {
+                bridge.publish(session, &report.clouds, std::time::SystemTime::now());
             }
             if report.inspection.is_some() {
                 publish_file(

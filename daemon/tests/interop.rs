@@ -1,5 +1,6 @@
 //! What other tools open: a scan's cloud converted by `ris convert` is read by libE57Format,
-//! the E57 reference library (through the Python `pye57` package), in metres with every point;
+//! the E57 reference library (through the Python `pye57` package), in metres with every point
+//! and its camera row and column;
 //! the PLY RIS writes is loaded by CloudCompare's command line (Debian's build, which has no
 //! E57 plugin) and exported with the same points. Both tools are installed by `.ci/run`.
 
@@ -10,9 +11,13 @@ use std::time::Duration;
 mod common;
 use common::output_within;
 
-/// A helix-like test cloud with confidences and volume flags, written as PLY.
+/// A helix-like test cloud with confidences, volume flags and camera pixels (every third pixel
+/// of a 300 x 200 image), written as PLY.
 fn cloud(path: &Path) -> ris_core::cloud::PointCloud {
-    let mut c = ris_core::cloud::PointCloud::default();
+    let mut c = ris_core::cloud::PointCloud {
+        image: Some([300, 200]),
+        ..Default::default()
+    };
     for i in 0..20_000 {
         let t = f64::from(i) * 0.003;
         c.points.push([
@@ -22,6 +27,7 @@ fn cloud(path: &Path) -> ris_core::cloud::PointCloud {
         ]);
         c.confidence.push((i % 13) as f32 / 13.0);
         c.outside.push(i % 17 == 0);
+        c.pixels.push(3 * i);
     }
     c.write_ply(path).expect("ply");
     c
@@ -46,7 +52,7 @@ fn libe57format_reads_the_e57_and_cloudcompare_the_ply_ris_writes() {
         "import pye57, json\n\
 e = pye57.E57({:?})\n\
 d = e.read_scan_raw(0, ignore_unsupported_fields=True)\n\
-print(json.dumps({{'scans': e.scan_count, 'x': list(d['cartesianX']), 'y': list(d['cartesianY']), 'z': list(d['cartesianZ'])}}))\n",
+print(json.dumps({{'scans': e.scan_count, 'x': list(d['cartesianX']), 'y': list(d['cartesianY']), 'z': list(d['cartesianZ']), 'row': [int(v) for v in d['rowIndex']], 'column': [int(v) for v in d['columnIndex']]}}))\n",
         e57.display().to_string()
     );
     let o = output_within(
@@ -68,8 +74,15 @@ print(json.dumps({{'scans': e.scan_count, 'x': list(d['cartesianX']), 'y': list(
             .collect()
     };
     let (x, y, z) = (axis("x"), axis("y"), axis("z"));
+    let (row, column) = (axis("row"), axis("column"));
     assert_eq!(x.len(), c.len());
     for (i, p) in c.points.iter().enumerate() {
+        let (r, k) = c.row_column(i).expect("organised");
+        assert_eq!(
+            (row[i], column[i]),
+            (f64::from(r), f64::from(k)),
+            "point {i}: camera pixel"
+        );
         for (m, mm) in [(x[i], p[0]), (y[i], p[1]), (z[i], p[2])] {
             assert!(
                 (m * 1000.0 - f64::from(mm)).abs() < 1e-3,

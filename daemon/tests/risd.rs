@@ -111,6 +111,15 @@ fn config_errors_name_the_field() {
             &format!("{ok}[[part]]\nid = \"p\"\ncad = \"p.stl\"\ntolerance = 0.0\n"),
             "part[0].tolerance",
         ),
+        (&format!("{ok}[ros2]\ndomain_id = 300\n"), "ros2.domain_id"),
+        (&format!("{ok}[ros2]\nenable = true\nnamespace = \"ris\"\n"), "ros2.namespace"),
+        (&format!("{ok}[ros2]\nenable = true\nnode = \"r-d\"\n"), "ros2.node"),
+        (&format!("{ok}[ros2]\nframe_id = \"a b\"\n"), "ros2.frame_id"),
+        (&format!("{ok}[ros2.sensor_frames]\ns9 = \"f\"\n"), "ros2.sensor_frames.s9"),
+        (
+            &format!("{}[ros2]\nenable = true\n", ok.replace("name = \"s1\"", "name = \"1s\"")),
+            "sensor.name",
+        ),
     ] {
         let err = CellConfig::parse(text, &base, "t.toml").expect_err(text);
         let msg = format!("{err:#}");
@@ -197,6 +206,34 @@ fn once_scans_the_builtin_mock_cell() {
     for s in ["s1", "s2", "s3", "s4"] {
         let c = ris_core::cloud::PointCloud::read_ply(&scan.join(format!("{s}.ply"))).expect(s);
         assert!(c.len() > 200_000, "{s}: {} points", c.len());
+        // Each sensor's cloud is organised: every point keeps its camera pixel.
+        // Each sensor's cloud is organised: every point keeps the camera pixel it was measured
+        // at, which the scene's true camera projects it back to.
+        let scene = ris_core::sim::Scene::load(&config_dir().join(format!("mock-cell/{s}.toml")))
+            .expect("scene");
+        assert_eq!(
+            c.organised(),
+            Some([scene.camera.width, scene.camera.height]),
+            "{s}"
+        );
+        let mut worst = 0f64;
+        for i in (0..c.len()).step_by(97) {
+            let p = c.points[i];
+            let (row, col) = c.row_column(i).expect("pixel");
+            let (u, v) = scene
+                .camera
+                .project(&nalgebra::Vector3::new(
+                    f64::from(p[0]),
+                    f64::from(p[1]),
+                    f64::from(p[2]),
+                ))
+                .expect("in front of the camera");
+            worst = worst.max((u - f64::from(col)).hypot(v - f64::from(row)));
+        }
+        assert!(
+            worst < 0.5,
+            "{s}: a point reprojects {worst} px from its pixel"
+        );
         total += c.len();
     }
     let merged = ris_core::cloud::PointCloud::read_ply(&scan.join("merged.ply")).expect("merged");
@@ -319,6 +356,7 @@ fn a_fault_in_one_pair_fails_that_scan_and_the_next_succeeds() {
         &mut pairs,
         ScanOptions {
             only: Some(&only),
+            e57: true,
             ..ScanOptions::default()
         },
         data.path(),
@@ -328,6 +366,24 @@ fn a_fault_in_one_pair_fails_that_scan_and_the_next_succeeds() {
     )
     .expect("subset scan");
     assert_eq!(report.sensors.len(), 1);
+    // With E57 asked for, each cloud is also E57, the same points (mm after the metres
+    // round trip) and, for the sensor's cloud, the same camera pixels.
+    for name in ["s3", "merged"] {
+        let c = data.path().join("scans/c");
+        let ply =
+            ris_core::cloud::PointCloud::read_ply(&c.join(format!("{name}.ply"))).expect("ply");
+        let e57 =
+            ris_core::cloud::PointCloud::read_e57(&c.join(format!("{name}.e57"))).expect("e57");
+        assert_eq!(e57.len(), ply.len(), "{name}");
+        assert_eq!((e57.image, &e57.pixels), (ply.image, &ply.pixels), "{name}");
+        assert_eq!(ply.organised().is_some(), name == "s3", "{name}");
+        for (a, b) in ply.points.iter().zip(&e57.points) {
+            assert!(
+                (0..3).all(|k| (a[k] - b[k]).abs() < 1e-3),
+                "{name}: {a:?} vs {b:?}"
+            );
+        }
+    }
     assert_eq!(report.sensors[0].sensor, "s3");
 
     // A panic inside a scan (here in the merge stage's state report) fails that scan with a

@@ -2,12 +2,16 @@
 //! Data3D cloud with Cartesian coordinates in metres (the standard's unit; RIS works in mm),
 //! double precision, and the per-point confidence and calibrated-volume flag as attributes of
 //! the `ris` extension. Reading takes the first cloud of any E57 file: Cartesian coordinates
-//! of any storage type, the RIS attributes when present (confidence 1 otherwise).
+//! of any storage type, the RIS attributes when present (confidence 1 otherwise). An organised
+//! cloud carries the standard `rowIndex`/`columnIndex` per point and the camera image's
+//! extent as the cloud's index bounds, which read back as the image size.
 
 use std::io::Cursor;
 use std::path::Path;
 
-use e57::{E57Reader, E57Writer, Extension, Record, RecordDataType, RecordName, RecordValue};
+use e57::{
+    E57Reader, E57Writer, Extension, IndexBounds, Record, RecordDataType, RecordName, RecordValue,
+};
 
 use super::PointCloud;
 use crate::io::write_atomic;
@@ -60,7 +64,29 @@ impl PointCloud {
                 data_type: RecordDataType::Integer { min: 0, max: 1 },
             });
         }
+        let grid = self.organised();
+        if let Some([w, h]) = grid {
+            for (name, n) in [(RecordName::RowIndex, h), (RecordName::ColumnIndex, w)] {
+                prototype.push(Record {
+                    name,
+                    data_type: RecordDataType::Integer {
+                        min: 0,
+                        max: i64::from(n.max(1)) - 1,
+                    },
+                });
+            }
+        }
         let mut pc = w.add_pointcloud(&format!("{guid}-cloud"), prototype)?;
+        if let Some([w, h]) = grid {
+            pc.set_index_bounds(Some(IndexBounds {
+                row_min: Some(0),
+                row_max: Some(i64::from(h.max(1)) - 1),
+                column_min: Some(0),
+                column_max: Some(i64::from(w.max(1)) - 1),
+                return_min: None,
+                return_max: None,
+            }));
+        }
         pc.set_name(Some(name.to_string()));
         pc.set_description(Some("RIS point cloud (coordinates in metres)".into()));
         for (i, p) in self.points.iter().enumerate() {
@@ -72,6 +98,10 @@ impl PointCloud {
             ];
             if flagged {
                 values.push(RecordValue::Integer(i64::from(self.outside[i])));
+            }
+            if let Some((r, c)) = self.row_column(i) {
+                values.push(RecordValue::Integer(i64::from(r)));
+                values.push(RecordValue::Integer(i64::from(c)));
             }
             pc.add_point(values)?;
         }
@@ -112,6 +142,8 @@ impl PointCloud {
         let ic = find(&named(CONFIDENCE));
         let io = find(&named(OUTSIDE));
         let invalid = find(&RecordName::CartesianInvalidState);
+        let grid = find(&RecordName::RowIndex).zip(find(&RecordName::ColumnIndex));
+        let mut rows_cols = Vec::new();
         let types: Vec<RecordDataType> = pc.prototype.iter().map(|p| p.data_type.clone()).collect();
         let mut cloud = PointCloud::default();
         let reader = r.pointcloud_raw(pc).map_err(|e| format_error(path, e))?;
@@ -142,6 +174,20 @@ impl PointCloud {
             if let Some(k) = io {
                 cloud.outside.push(get(k)? != 0.0);
             }
+            if let Some((r, c)) = grid {
+                rows_cols.push((get(r)?, get(c)?));
+            }
+        }
+        if grid.is_some() {
+            let b = &pc.index_bounds;
+            let size = match b.as_ref().map(|b| (b.column_max, b.row_max)) {
+                Some((Some(c), Some(r))) if c >= 0 && r >= 0 => Some((
+                    (c + 1).min(i64::from(u32::MAX)) as u32,
+                    (r + 1).min(i64::from(u32::MAX)) as u32,
+                )),
+                _ => None,
+            };
+            super::organise(&mut cloud, &rows_cols, size).map_err(|e| format_error(path, e))?;
         }
         Ok(cloud)
     }

@@ -1,8 +1,14 @@
 //! Point clouds and PLY files (SPEC §2): written as binary little-endian `x y z confidence`
 //! float32; read from ASCII or binary PLY with float or double coordinates. E57 in `e57`.
+//!
+//! A cloud from one camera is *organised*: each point keeps the camera pixel it was measured
+//! at. PLY carries it as `row` and `column` (uint) with the image size in the PCL-style header
+//! lines `obj_info num_cols W` and `obj_info num_rows H`; E57 as `rowIndex`/`columnIndex` with
+//! the image's extent as the cloud's index bounds.
 
 mod e57;
 mod merge;
+pub mod pointcloud2;
 
 pub use merge::{merge, MergeStats, Merger};
 
@@ -20,19 +26,24 @@ pub struct PointCloud {
     pub confidence: Vec<f32>,
     /// Row-major camera pixel index per point (empty when not organised).
     pub pixels: Vec<u32>,
+    /// The camera image (width, height) that `pixels` index; `None` when not organised.
+    pub image: Option<[u32; 2]>,
     /// Per point, whether it lies outside its sensor's calibrated volume (empty when the
     /// sensor states no volume); written to PLY as `outside_volume`.
     pub outside: Vec<bool>,
 }
 
 impl PointCloud {
-    /// Compact a dense per-pixel buffer (NaN = no point) with its confidence map.
-    pub fn from_dense(dense: &[[f32; 3]], confidence: &[f32]) -> PointCloud {
+    /// Compact a dense row-major per-pixel buffer of an image `width` pixels wide (NaN = no
+    /// point) with its confidence map; the cloud is organised.
+    pub fn from_dense(dense: &[[f32; 3]], confidence: &[f32], width: u32) -> PointCloud {
         let n = dense.iter().filter(|p| p[0].is_finite()).count();
+        let height = (dense.len() as u64).div_ceil(u64::from(width.max(1))) as u32;
         let mut cloud = PointCloud {
             points: Vec::with_capacity(n),
             confidence: Vec::with_capacity(n),
             pixels: Vec::with_capacity(n),
+            image: Some([width, height]),
             outside: Vec::new(),
         };
         for (i, p) in dense.iter().enumerate() {
@@ -78,6 +89,18 @@ impl PointCloud {
         before - self.points.len()
     }
 
+    /// The image size (width, height) when every point carries its camera pixel.
+    pub fn organised(&self) -> Option<[u32; 2]> {
+        self.image
+            .filter(|&[w, _]| w > 0 && self.pixels.len() == self.points.len())
+    }
+
+    /// The camera (row, column) of point `i` of an organised cloud.
+    pub fn row_column(&self, i: usize) -> Option<(u32, u32)> {
+        let [w, _] = self.organised()?;
+        self.pixels.get(i).map(|&p| (p / w, p % w))
+    }
+
     /// Points flagged outside the calibrated volume.
     pub fn outside_count(&self) -> usize {
         self.outside.iter().filter(|o| **o).count()
@@ -112,17 +135,27 @@ impl PointCloud {
     /// publishes).
     pub fn to_ply(&self) -> Vec<u8> {
         let flagged = self.outside.len() == self.points.len() && !self.points.is_empty();
-        let header = format!(
-            "ply\nformat binary_little_endian 1.0\ncomment written by RIS {}\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nproperty float confidence\n{}end_header\n",
-            env!("CARGO_PKG_VERSION"),
-            self.points.len(),
-            if flagged {
-                "property uchar outside_volume\n"
-            } else {
-                ""
-            }
+        let grid = self.organised();
+        let mut header = format!(
+            "ply\nformat binary_little_endian 1.0\ncomment written by RIS {}\n",
+            env!("CARGO_PKG_VERSION")
         );
-        let mut buf = Vec::with_capacity(header.len() + self.points.len() * 17);
+        if let Some([w, h]) = grid {
+            header += &format!("obj_info num_cols {w}\nobj_info num_rows {h}\n");
+        }
+        header += &format!(
+            "element vertex {}\nproperty float x\nproperty float y\nproperty float z\nproperty float confidence\n",
+            self.points.len()
+        );
+        if flagged {
+            header += "property uchar outside_volume\n";
+        }
+        if grid.is_some() {
+            header += "property uint row\nproperty uint column\n";
+        }
+        header += "end_header\n";
+        let stride = 16 + usize::from(flagged) + if grid.is_some() { 8 } else { 0 };
+        let mut buf = Vec::with_capacity(header.len() + self.points.len() * stride);
         buf.extend_from_slice(header.as_bytes());
         for (i, (p, c)) in self.points.iter().zip(&self.confidence).enumerate() {
             for v in [p[0], p[1], p[2], *c] {
@@ -131,6 +164,10 @@ impl PointCloud {
             if flagged {
                 buf.push(u8::from(self.outside[i]));
             }
+            if let Some((r, col)) = self.row_column(i) {
+                buf.extend_from_slice(&r.to_le_bytes());
+                buf.extend_from_slice(&col.to_le_bytes());
+            }
         }
         buf
     }
@@ -138,8 +175,13 @@ impl PointCloud {
     /// Read a PLY file (ASCII, binary little- or big-endian); `confidence` defaults to 1.
     pub fn read_ply(path: &Path) -> Result<PointCloud> {
         let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-        parse_ply(&bytes).map_err(|message| Error::Format {
-            path: path.to_path_buf(),
+        Self::from_ply(&bytes, path)
+    }
+
+    /// Parse PLY bytes (as [`PointCloud::read_ply`]); `origin` names them in errors.
+    pub fn from_ply(bytes: &[u8], origin: &Path) -> Result<PointCloud> {
+        parse_ply(bytes).map_err(|message| Error::Format {
+            path: origin.to_path_buf(),
             message,
         })
     }
@@ -202,9 +244,12 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
     let mut props: Vec<(String, String)> = Vec::new();
     let mut in_vertex = false;
     let mut before_vertex_bytes = false;
+    let (mut num_cols, mut num_rows) = (None::<u32>, None::<u32>);
     for line in lines {
         let f: Vec<&str> = line.split_whitespace().collect();
         match f.as_slice() {
+            ["obj_info", "num_cols", n] => num_cols = n.parse().ok(),
+            ["obj_info", "num_rows", n] => num_rows = n.parse().ok(),
             ["format", "ascii", _] => enc = Encoding::Ascii,
             ["format", "binary_little_endian", _] => enc = Encoding::Le,
             ["format", "binary_big_endian", _] => enc = Encoding::Be,
@@ -239,6 +284,7 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
     };
     let ic = idx("confidence");
     let io = idx("outside_volume");
+    let grid = idx("row").zip(idx("column"));
     let body = &bytes[end..];
     // The header's count is checked against the bytes that follow before anything is
     // allocated: an ASCII vertex takes at least one character and one separator per property.
@@ -259,8 +305,10 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
         points: Vec::with_capacity(count),
         confidence: Vec::with_capacity(count),
         pixels: Vec::new(),
+        image: None,
         outside: Vec::new(),
     };
+    let mut rows_cols: Vec<(f64, f64)> = Vec::new();
     let mut vals = vec![0f64; props.len()];
     match enc {
         Encoding::Ascii => {
@@ -280,6 +328,9 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
                 cloud.confidence.push(ic.map_or(1.0, |c| vals[c] as f32));
                 if let Some(o) = io {
                     cloud.outside.push(vals[o] != 0.0);
+                }
+                if let Some((r, c)) = grid {
+                    rows_cols.push((vals[r], vals[c]));
                 }
             }
         }
@@ -304,8 +355,14 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
                 if let Some(o) = io {
                     cloud.outside.push(vals[o] != 0.0);
                 }
+                if let Some((r, c)) = grid {
+                    rows_cols.push((vals[r], vals[c]));
+                }
             }
         }
+    }
+    if grid.is_some() {
+        organise(&mut cloud, &rows_cols, num_cols.zip(num_rows))?;
     }
     let dropped = cloud.retain_finite();
     if dropped > 0 {
@@ -315,6 +372,43 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
         );
     }
     Ok(cloud)
+}
+
+/// Give a cloud its camera pixels from per-point (row, column): the image is `size` when the
+/// file states it (every index must lie inside), else the smallest that holds them.
+pub(crate) fn organise(
+    cloud: &mut PointCloud,
+    rows_cols: &[(f64, f64)],
+    size: Option<(u32, u32)>,
+) -> std::result::Result<(), String> {
+    let mut extent = (0u32, 0u32);
+    for (k, &(r, c)) in rows_cols.iter().enumerate() {
+        let valid = |v: f64| v >= 0.0 && v.fract() == 0.0 && v < f64::from(u32::MAX);
+        if !valid(r) || !valid(c) {
+            return Err(format!(
+                "point {k}: row {r} / column {c} is not a pixel index"
+            ));
+        }
+        extent = (extent.0.max(c as u32 + 1), extent.1.max(r as u32 + 1));
+    }
+    let (w, h) = match size {
+        Some((w, h)) if extent.0 <= w && extent.1 <= h => (w, h),
+        Some((w, h)) => {
+            return Err(format!(
+                "a point's row/column lies outside the stated {w} x {h} image"
+            ))
+        }
+        None => extent,
+    };
+    if u64::from(w) * u64::from(h) > u64::from(u32::MAX) {
+        return Err(format!("a {w} x {h} image is too large to index"));
+    }
+    cloud.pixels = rows_cols
+        .iter()
+        .map(|&(r, c)| r as u32 * w + c as u32)
+        .collect();
+    cloud.image = Some([w, h]);
+    Ok(())
 }
 
 #[cfg(test)]
@@ -328,6 +422,7 @@ mod tests {
             points: vec![[1.0, 2.0, 3.0], [-4.5, 0.25, 1e3]],
             confidence: vec![0.5, 1.0],
             pixels: vec![],
+            image: None,
             outside: vec![false, true],
         };
         let p = dir.path().join("a.ply");

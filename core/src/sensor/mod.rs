@@ -247,7 +247,7 @@ impl Reconstructor {
                 });
             }
         }
-        let mut cloud = PointCloud::from_dense(&dense, &decoded.confidence);
+        let mut cloud = PointCloud::from_dense(&dense, &decoded.confidence, decoded.width);
         if let Some(volume) = &self.volume {
             cloud.outside = cloud
                 .points

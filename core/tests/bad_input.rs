@@ -59,6 +59,7 @@ fn non_finite_points_are_dropped_and_counted() {
         pixels: vec![3, 4],
         image: Some([4, 2]),
         outside: vec![],
+        scalars: vec![],
     };
     assert_eq!(c.retain_finite(), 1);
     assert_eq!(

@@ -67,3 +67,77 @@ fn clouds_round_trip_through_e57_in_metres() {
     let err = PointCloud::read_e57(&ply).expect_err("refused").to_string();
     assert!(err.contains("not.e57") && err.contains("E57"), "{err}");
 }
+
+#[test]
+fn deviations_and_intensities_go_through_ply_and_e57() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let mut r = Rng(21);
+    let n = 3_000;
+    let points: Vec<[f64; 3]> = (0..n)
+        .map(|_| {
+            [
+                r.range(-500.0, 500.0),
+                r.range(-400.0, 400.0),
+                r.range(0.0, 60.0),
+            ]
+        })
+        .collect();
+    let devs: Vec<f64> = (0..n).map(|_| r.range(-0.8, 0.8)).collect();
+    // The inspection's own deviation cloud keeps its deviations through E57 and back.
+    let ply = dir.path().join("deviation.ply");
+    ris_core::inspect::write_deviation_ply(&ply, &points, &devs).expect("deviation.ply");
+    let cloud = PointCloud::read_ply(&ply).expect("read");
+    assert_eq!(cloud.scalars.len(), 1);
+    assert_eq!(cloud.scalars[0].name, "deviation");
+    for (a, b) in cloud.scalars[0].values.iter().zip(&devs) {
+        assert_eq!(*a, *b as f32);
+    }
+    let e57 = dir.path().join("deviation.e57");
+    cloud.write_e57(&e57).expect("e57");
+    let back = PointCloud::read_e57(&e57).expect("read e57");
+    assert_eq!(back.scalars, cloud.scalars);
+    let again = dir.path().join("again.ply");
+    back.write_ply(&again).expect("ply");
+    assert_eq!(
+        PointCloud::read_ply(&again).expect("read").scalars,
+        cloud.scalars
+    );
+
+    // An intensity (uchar in a PLY made elsewhere) becomes the standard's intensity, which a
+    // reader that knows nothing of RIS sees.
+    let mut text = format!(
+        "ply\nformat ascii 1.0\nelement vertex {n}\nproperty double x\nproperty double y\nproperty double z\nproperty uchar intensity\nend_header\n"
+    );
+    for (i, p) in points.iter().enumerate() {
+        text += &format!("{} {} {} {}\n", p[0], p[1], p[2], i % 256);
+    }
+    let ply = dir.path().join("grey.ply");
+    std::fs::write(&ply, text).expect("w");
+    let cloud = PointCloud::read_ply(&ply).expect("read");
+    let e57 = dir.path().join("grey.e57");
+    cloud.write_e57(&e57).expect("e57");
+    let mut e = e57::E57Reader::from_file(&e57).expect("e57 reader");
+    let pcs = e.pointclouds();
+    let seen: Vec<f32> = e
+        .pointcloud_simple(&pcs[0])
+        .expect("simple")
+        .map(|p| p.expect("point").intensity.expect("an intensity"))
+        .collect();
+    assert_eq!(seen.len(), n);
+    // The simple reader normalises intensity to 0 … 1 over the cloud's intensity limits.
+    for (i, v) in seen.iter().enumerate() {
+        let want = (i % 256) as f32 / 255.0;
+        assert!((v - want).abs() < 1e-5, "point {i}: {v} vs {want}");
+    }
+    let back = PointCloud::read_e57(&e57).expect("read");
+    assert_eq!(back.scalars, cloud.scalars);
+
+    // A name E57 cannot hold is refused with the file's name.
+    let mut odd = cloud.clone();
+    odd.scalars[0].name = "9 lives".into();
+    let err = odd
+        .write_e57(&dir.path().join("odd.e57"))
+        .expect_err("refused")
+        .to_string();
+    assert!(err.contains("odd.e57") && err.contains("9 lives"), "{err}");
+}

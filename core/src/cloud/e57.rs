@@ -4,16 +4,19 @@
 //! the `ris` extension. Reading takes the first cloud of any E57 file: Cartesian coordinates
 //! of any storage type, the RIS attributes when present (confidence 1 otherwise). An organised
 //! cloud carries the standard `rowIndex`/`columnIndex` per point and the camera image's
-//! extent as the cloud's index bounds, which read back as the image size.
+//! extent as the cloud's index bounds, which read back as the image size. Further per-point
+//! values ([`super::Scalar`]) go out as the standard's `intensity` when so named, else as
+//! `ris:<name>` attributes, and come back under the same names.
 
 use std::io::Cursor;
 use std::path::Path;
 
 use e57::{
-    E57Reader, E57Writer, Extension, IndexBounds, Record, RecordDataType, RecordName, RecordValue,
+    E57Reader, E57Writer, Extension, IndexBounds, IntensityLimits, Record, RecordDataType,
+    RecordName, RecordValue,
 };
 
-use super::PointCloud;
+use super::{PointCloud, Scalar};
 use crate::io::write_atomic;
 use crate::{Error, Result};
 
@@ -28,6 +31,25 @@ fn named(name: &str) -> RecordName {
     RecordName::Unknown {
         namespace: NAMESPACE.into(),
         name: name.into(),
+    }
+}
+
+/// Whether `name` can name an E57 attribute (an XML name without a namespace).
+fn attribute_name(name: &str) -> bool {
+    name.chars()
+        .next()
+        .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.'))
+}
+
+/// The E57 record of a per-point value called `name`.
+fn scalar_record(name: &str) -> RecordName {
+    if name == "intensity" {
+        RecordName::Intensity
+    } else {
+        named(name)
     }
 }
 
@@ -76,7 +98,35 @@ impl PointCloud {
                 });
             }
         }
+        let scalars: Vec<&Scalar> = self.full_scalars().collect();
+        for sc in &scalars {
+            if !attribute_name(&sc.name) || [CONFIDENCE, OUTSIDE].contains(&sc.name.as_str()) {
+                return e57::Error::invalid(format!(
+                    "the per-point value {:?} cannot be named in E57",
+                    sc.name
+                ));
+            }
+            prototype.push(Record {
+                name: scalar_record(&sc.name),
+                data_type: RecordDataType::F32,
+            });
+        }
         let mut pc = w.add_pointcloud(&format!("{guid}-cloud"), prototype)?;
+        if let Some(sc) = scalars.iter().find(|sc| sc.name == "intensity") {
+            let (lo, hi) = sc
+                .values
+                .iter()
+                .filter(|v| v.is_finite())
+                .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
+                    (a.min(v), b.max(v))
+                });
+            if lo <= hi {
+                pc.set_intensity_limits(Some(IntensityLimits {
+                    intensity_min: Some(RecordValue::Single(lo)),
+                    intensity_max: Some(RecordValue::Single(hi)),
+                }));
+            }
+        }
         if let Some([w, h]) = grid {
             pc.set_index_bounds(Some(IndexBounds {
                 row_min: Some(0),
@@ -102,6 +152,9 @@ impl PointCloud {
             if let Some((r, c)) = self.row_column(i) {
                 values.push(RecordValue::Integer(i64::from(r)));
                 values.push(RecordValue::Integer(i64::from(c)));
+            }
+            for sc in &scalars {
+                values.push(RecordValue::Single(sc.values[i]));
             }
             pc.add_point(values)?;
         }
@@ -144,8 +197,31 @@ impl PointCloud {
         let invalid = find(&RecordName::CartesianInvalidState);
         let grid = find(&RecordName::RowIndex).zip(find(&RecordName::ColumnIndex));
         let mut rows_cols = Vec::new();
+        let extra: Vec<(usize, String)> = pc
+            .prototype
+            .iter()
+            .enumerate()
+            .filter_map(|(k, rec)| match &rec.name {
+                RecordName::Intensity => Some((k, "intensity".to_string())),
+                RecordName::Unknown { namespace, name }
+                    if namespace == NAMESPACE && name != CONFIDENCE && name != OUTSIDE =>
+                {
+                    Some((k, name.clone()))
+                }
+                _ => None,
+            })
+            .collect();
         let types: Vec<RecordDataType> = pc.prototype.iter().map(|p| p.data_type.clone()).collect();
-        let mut cloud = PointCloud::default();
+        let mut cloud = PointCloud {
+            scalars: extra
+                .iter()
+                .map(|(_, name)| Scalar {
+                    name: name.clone(),
+                    values: Vec::new(),
+                })
+                .collect(),
+            ..Default::default()
+        };
         let reader = r.pointcloud_raw(pc).map_err(|e| format_error(path, e))?;
         for values in reader {
             let values = values.map_err(|e| format_error(path, e))?;
@@ -176,6 +252,9 @@ impl PointCloud {
             }
             if let Some((r, c)) = grid {
                 rows_cols.push((get(r)?, get(c)?));
+            }
+            for (sc, (k, _)) in cloud.scalars.iter_mut().zip(&extra) {
+                sc.values.push(get(*k)? as f32);
             }
         }
         if grid.is_some() {

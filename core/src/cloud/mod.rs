@@ -31,7 +31,31 @@ pub struct PointCloud {
     /// Per point, whether it lies outside its sensor's calibrated volume (empty when the
     /// sensor states no volume); written to PLY as `outside_volume`.
     pub outside: Vec<bool>,
+    /// Further per-point values a file brought (a deviation, an intensity), carried through
+    /// PLY and E57 under their names.
+    pub scalars: Vec<Scalar>,
 }
+
+/// A named per-point value (one per point of its cloud).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Scalar {
+    /// The property's name (`deviation`, `intensity`, …).
+    pub name: String,
+    /// One value per point.
+    pub values: Vec<f32>,
+}
+
+/// The vertex properties RIS gives a meaning of its own; others are kept as [`Scalar`]s.
+const KNOWN: [&str; 8] = [
+    "x",
+    "y",
+    "z",
+    "confidence",
+    "outside_volume",
+    "nx",
+    "ny",
+    "nz",
+];
 
 impl PointCloud {
     /// Compact a dense row-major per-pixel buffer of an image `width` pixels wide (NaN = no
@@ -45,6 +69,7 @@ impl PointCloud {
             pixels: Vec::with_capacity(n),
             image: Some([width, height]),
             outside: Vec::new(),
+            scalars: Vec::new(),
         };
         for (i, p) in dense.iter().enumerate() {
             if p[0].is_finite() {
@@ -86,6 +111,9 @@ impl PointCloud {
         by(&mut self.confidence, keep);
         by(&mut self.pixels, keep);
         by(&mut self.outside, keep);
+        for s in &mut self.scalars {
+            by(&mut s.values, keep);
+        }
         before - self.points.len()
     }
 
@@ -99,6 +127,13 @@ impl PointCloud {
     pub fn row_column(&self, i: usize) -> Option<(u32, u32)> {
         let [w, _] = self.organised()?;
         self.pixels.get(i).map(|&p| (p / w, p % w))
+    }
+
+    /// The scalars that hold one value per point (the ones written).
+    pub fn full_scalars(&self) -> impl Iterator<Item = &Scalar> {
+        self.scalars
+            .iter()
+            .filter(|s| s.values.len() == self.points.len())
     }
 
     /// Points flagged outside the calibrated volume.
@@ -153,8 +188,13 @@ impl PointCloud {
         if grid.is_some() {
             header += "property uint row\nproperty uint column\n";
         }
+        let scalars: Vec<&Scalar> = self.full_scalars().collect();
+        for s in &scalars {
+            header += &format!("property float {}\n", s.name);
+        }
         header += "end_header\n";
-        let stride = 16 + usize::from(flagged) + if grid.is_some() { 8 } else { 0 };
+        let stride =
+            16 + usize::from(flagged) + if grid.is_some() { 8 } else { 0 } + 4 * scalars.len();
         let mut buf = Vec::with_capacity(header.len() + self.points.len() * stride);
         buf.extend_from_slice(header.as_bytes());
         for (i, (p, c)) in self.points.iter().zip(&self.confidence).enumerate() {
@@ -167,6 +207,9 @@ impl PointCloud {
             if let Some((r, col)) = self.row_column(i) {
                 buf.extend_from_slice(&r.to_le_bytes());
                 buf.extend_from_slice(&col.to_le_bytes());
+            }
+            for s in &scalars {
+                buf.extend_from_slice(&s.values[i].to_le_bytes());
             }
         }
         buf
@@ -285,6 +328,10 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
     let ic = idx("confidence");
     let io = idx("outside_volume");
     let grid = idx("row").zip(idx("column"));
+    let extra: Vec<usize> = (0..props.len())
+        .filter(|&k| !KNOWN.contains(&props[k].1.as_str()))
+        .filter(|&k| grid.is_none() || !matches!(props[k].1.as_str(), "row" | "column"))
+        .collect();
     let body = &bytes[end..];
     // The header's count is checked against the bytes that follow before anything is
     // allocated: an ASCII vertex takes at least one character and one separator per property.
@@ -307,6 +354,13 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
         pixels: Vec::new(),
         image: None,
         outside: Vec::new(),
+        scalars: extra
+            .iter()
+            .map(|&k| Scalar {
+                name: props[k].1.clone(),
+                values: Vec::with_capacity(count),
+            })
+            .collect(),
     };
     let mut rows_cols: Vec<(f64, f64)> = Vec::new();
     let mut vals = vec![0f64; props.len()];
@@ -331,6 +385,9 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
                 }
                 if let Some((r, c)) = grid {
                     rows_cols.push((vals[r], vals[c]));
+                }
+                for (s, &k) in cloud.scalars.iter_mut().zip(&extra) {
+                    s.values.push(vals[k] as f32);
                 }
             }
         }
@@ -357,6 +414,9 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PointCloud, String> {
                 }
                 if let Some((r, c)) = grid {
                     rows_cols.push((vals[r], vals[c]));
+                }
+                for (s, &k) in cloud.scalars.iter_mut().zip(&extra) {
+                    s.values.push(vals[k] as f32);
                 }
             }
         }
@@ -424,6 +484,7 @@ mod tests {
             pixels: vec![],
             image: None,
             outside: vec![false, true],
+            scalars: vec![],
         };
         let p = dir.path().join("a.ply");
         cloud.write_ply(&p).expect("write");

@@ -23,6 +23,7 @@ pub mod pattern;
 pub mod register;
 pub mod sensor;
 pub mod sim;
+pub mod single_shot;
 pub mod spatial;
 
 pub use error::{Error, Result};

@@ -1270,6 +1270,60 @@ fn ring_pattern_is_written_with_a_file_that_rebuilds_it() {
 }
 
 #[test]
+fn xpoint_pattern_is_written_with_a_file_that_states_every_primitive() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("xp");
+    let o = ris(&[
+        "patterns",
+        "--xpoint",
+        "--projector",
+        "1024x768",
+        "--step",
+        "14,12",
+        "--seed",
+        "9",
+        "--out",
+        out.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let img = ris_core::image::GrayImage::load(&out.join("xpoint.png")).expect("xpoint.png");
+    assert_eq!((img.width, img.height), (1024, 768));
+    let p = ris_core::single_shot::XPointPattern::load(&out.join("xpoint.toml")).expect("toml");
+    assert_eq!(
+        (p.pattern.step, p.pattern.seed, p.pattern.min_distance),
+        ([14, 12], 9, 3)
+    );
+    // The file rebuilds the image exactly, and it is what the library draws for that request.
+    let drawn: Vec<f32> = p.render().into_iter().map(f32::from).collect();
+    assert_eq!(img.to_levels(), drawn);
+    assert_eq!(
+        p,
+        ris_core::single_shot::XPointPattern::generate(1024, 768, [14, 12], 3, 9).expect("again")
+    );
+    let [c, r] = p.grid();
+    assert!(
+        String::from_utf8_lossy(&o.stdout).contains(&format!("{c}x{r} grid")),
+        "{}",
+        String::from_utf8_lossy(&o.stdout)
+    );
+    for (args, needle) in [
+        (vec!["--min-distance", "5"], "min_distance"),
+        (vec!["--step", "14"], "--step"),
+        (vec!["--rings"], "--rings and --xpoint"),
+    ] {
+        let mut a = vec!["patterns", "--xpoint", "--projector", "1024x768", "--out"];
+        a.push(out.to_str().expect("utf8"));
+        a.extend(args);
+        let bad = ris(&a);
+        assert!(
+            !bad.status.success() && stderr(&bad).contains(needle),
+            "{needle}: {}",
+            stderr(&bad)
+        );
+    }
+}
+
+#[test]
 fn convert_takes_a_cloud_through_e57_and_back() {
     let dir = tempfile::tempdir().expect("tmp");
     let mut cloud = ris_core::cloud::PointCloud::default();

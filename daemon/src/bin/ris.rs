@@ -198,6 +198,18 @@ enum Command {
         /// Centre of the rings, e.g. 511.5,383.5 (default: the image centre).
         #[arg(long)]
         center: Option<String>,
+        /// Write the single-shot X-point pattern instead (xpoint.png, xpoint.toml).
+        #[arg(long)]
+        xpoint: bool,
+        /// With --xpoint: the seed of the code array.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// With --xpoint: grid steps DX,DY in projector pixels.
+        #[arg(long, default_value = "14,14")]
+        step: String,
+        /// With --xpoint: Hamming distance every two distinct 3x3 windows keep (at most 3).
+        #[arg(long, default_value_t = 3)]
+        min_distance: u32,
         /// Output directory.
         #[arg(long)]
         out: PathBuf,
@@ -459,9 +471,42 @@ fn main() -> Result<()> {
             flats,
             rings,
             center,
+            xpoint,
+            seed,
+            step,
+            min_distance,
             out,
         } => {
             let (width, height) = commands::parse_size(&projector)?;
+            anyhow::ensure!(
+                !(rings && xpoint),
+                "--rings and --xpoint are different patterns: one at a time"
+            );
+            if xpoint {
+                let step: Vec<u32> = step
+                    .split(',')
+                    .map(|x| x.trim().parse::<u32>())
+                    .collect::<std::result::Result<_, _>>()
+                    .map_err(|_| anyhow::anyhow!("--step {step:?}: expected DX,DY in pixels"))?;
+                anyhow::ensure!(step.len() == 2, "--step: expected DX,DY in pixels");
+                let p = commands::patterns::xpoint(
+                    width,
+                    height,
+                    [step[0], step[1]],
+                    min_distance,
+                    seed,
+                    &out,
+                )?;
+                let [c, r] = p.grid();
+                println!(
+                    "wrote {} X-points ({c}x{r} grid, windows unique over {}x{}) for a {width}x{height} projector to {}",
+                    c * r,
+                    p.pattern.period[0],
+                    p.pattern.period[1],
+                    out.display()
+                );
+                return Ok(());
+            }
             if rings {
                 let center = match center {
                     Some(c) => {

@@ -43,3 +43,26 @@ pub fn rings(width: u32, height: u32, center: Option<[f64; 2]>, out: &Path) -> R
     tracing::info!(rings = pattern.ring.len(), dir = %out.display(), "ring pattern written");
     Ok(pattern.ring.len())
 }
+
+/// Write the single-shot X-point pattern (SPEC §10): `xpoint.png` and `xpoint.toml`, which
+/// states every primitive so that the image can be redrawn from it.
+pub fn xpoint(
+    width: u32,
+    height: u32,
+    step: [u32; 2],
+    min_distance: u32,
+    seed: u64,
+    out: &Path,
+) -> Result<ris_core::single_shot::XPointPattern> {
+    let pattern =
+        ris_core::single_shot::XPointPattern::generate(width, height, step, min_distance, seed)?;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let png = out.join("xpoint.png");
+    GrayImage::from_u8(width, height, pattern.render())
+        .save_png(&png)
+        .with_context(|| format!("writing {}", png.display()))?;
+    ris_core::io::write_toml(&out.join("xpoint.toml"), &pattern)
+        .with_context(|| format!("writing {}", out.join("xpoint.toml").display()))?;
+    tracing::info!(primitives = pattern.primitives.u.len(), dir = %out.display(), "X-point pattern written");
+    Ok(pattern)
+}

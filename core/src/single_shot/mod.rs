@@ -1,0 +1,7 @@
+//! Single-shot sensing (Ch. 4.2, 7.1.2, 7.2; SPEC §10): one projected frame, the X-point
+//! pattern, gives a cloud, so moving parts and a robot's surroundings can be measured.
+
+pub mod code;
+mod pattern;
+
+pub use pattern::{PatternSection, Primitives, XPointPattern, MIN_STEP};

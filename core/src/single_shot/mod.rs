@@ -2,6 +2,10 @@
 //! pattern, gives a cloud, so moving parts and a robot's surroundings can be measured.
 
 pub mod code;
+mod decode;
+mod detect;
 mod pattern;
 
+pub use decode::{decode, Correspondence, DecodeStats, Predict};
+pub use detect::{detect, DetectParams, Detection};
 pub use pattern::{PatternSection, Primitives, XPointPattern, MIN_STEP};

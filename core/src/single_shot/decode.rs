@@ -1,0 +1,483 @@
+//! From X-points in the camera to projector positions (Ch. 4.2.3): each detection's value from
+//! its axis measured against the local grid (the line to its horizontal neighbours is the base
+//! axis, Fig. 4.4), its 3×3 codeword from its 8 neighbours found along the grid, the codeword
+//! looked up with one wrong symbol corrected (or one missing neighbour filled), the repeat of
+//! the code chosen by the predicted correspondence, and every position checked against the
+//! neighbours' (grid consistency) so that a wrong codeword cannot place a point far away.
+//! Detections at the edge of the lit region, whose window is incomplete, take their position
+//! from a decoded neighbour when their own value agrees.
+
+use std::collections::HashMap;
+
+use super::code::PERIOD;
+use super::detect::Detection;
+use super::XPointPattern;
+
+/// A decoded X-point: where the camera saw it and which primitive it is.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Correspondence {
+    /// Camera corner, pixels.
+    pub x: f64,
+    /// Camera corner row.
+    pub y: f64,
+    /// The primitive's index in `xpoint.toml`.
+    pub primitive: usize,
+    /// Its projector corner.
+    pub u: f64,
+    /// Its projector row.
+    pub v: f64,
+    /// Whether its own codeword placed it (else a neighbour did).
+    pub from_codeword: bool,
+}
+
+/// What the decoder found, for reports.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DecodeStats {
+    /// Detections given.
+    pub detections: usize,
+    /// Codewords read whole (9 or 8 of 9 symbols).
+    pub windows: usize,
+    /// Codewords found in the code (after correction).
+    pub matched: usize,
+    /// Codewords whose repeat the prediction could not choose.
+    pub ambiguous: usize,
+    /// Placements the neighbours contradicted.
+    pub inconsistent: usize,
+    /// Detections placed by a neighbour.
+    pub propagated: usize,
+    /// Detections whose axis fell between two symbols.
+    pub unreadable: usize,
+}
+
+/// Grid offsets of the 8 neighbours and the centre, row by row (window order).
+const OFFSETS: [(i32, i32); 9] = [
+    (-1, -1),
+    (0, -1),
+    (1, -1),
+    (-1, 0),
+    (0, 0),
+    (1, 0),
+    (-1, 1),
+    (0, 1),
+    (1, 1),
+];
+
+/// A camera point's projector point on the reference, when known.
+pub type Predict<'a> = &'a (dyn Fn(f64, f64) -> Option<(f64, f64)> + Sync);
+
+/// Decode `detections` against `pattern`. `predict` gives, for a camera point, the projector
+/// point it would have on the reference (the Gray-code reference through the sensor model):
+/// the code repeats every [`PERIOD`] grid cells, and the repeat nearest to the prediction is
+/// taken; without a prediction a codeword that occurs twice in the pattern is left out.
+pub fn decode(
+    detections: &[Detection],
+    pattern: &XPointPattern,
+    predict: Option<Predict>,
+) -> (Vec<Correspondence>, DecodeStats) {
+    let mut stats = DecodeStats {
+        detections: detections.len(),
+        ..Default::default()
+    };
+    let n = detections.len();
+    let [cols, rows] = pattern.grid();
+    if n < 4 || cols < 3 || rows < 3 {
+        return (Vec::new(), stats);
+    }
+    let prims = &pattern.primitives;
+    let at = |i: i64, j: i64| -> Option<usize> {
+        (i >= 0 && j >= 0 && (i as usize) < cols && (j as usize) < rows)
+            .then(|| j as usize * cols + i as usize)
+    };
+    let step = pattern.pattern.step.map(f64::from);
+    let index = SpatialIndex::new(detections);
+
+    // The grid as the camera sees it: the median vectors to the nearest neighbours that lie
+    // nearer the image's rows (h) and columns (w).
+    let (hg, wg) = match grid_vectors(detections, &index) {
+        Some(v) => v,
+        None => return (Vec::new(), stats),
+    };
+
+    // Each detection's neighbours along the grid, local grid vectors and value.
+    let neigh: Vec<[Option<usize>; 9]> = (0..n)
+        .map(|k| neighbours(k, detections, &index, hg, wg))
+        .collect();
+    let values: Vec<Option<u8>> = (0..n)
+        .map(|k| value(k, detections, &neigh[k], hg, wg, step))
+        .collect();
+    stats.unreadable = values.iter().filter(|v| v.is_none()).count();
+
+    // The code: every window of the pattern by its symbols, with its centre's grid position.
+    let mut code: HashMap<[u8; 9], Vec<(usize, usize)>> = HashMap::new();
+    for j in 0..rows - 2 {
+        for i in 0..cols - 2 {
+            code.entry(super::code::window(&prims.value, cols, i, j))
+                .or_default()
+                .push((i + 1, j + 1));
+        }
+    }
+    let origin = (prims.u[0], prims.v[0]);
+
+    // Each detection's own placement from its codeword.
+    let mut own: Vec<Option<(usize, usize)>> = vec![None; n];
+    for k in 0..n {
+        let mut word = [0u8; 9];
+        let mut unknown = Vec::new();
+        for (c, nb) in neigh[k].iter().enumerate() {
+            match nb.and_then(|m| values[m]) {
+                Some(v) => word[c] = v,
+                None => unknown.push(c),
+            }
+        }
+        if unknown.len() > 1 {
+            continue;
+        }
+        stats.windows += 1;
+        let Some(places) = lookup(&code, word, unknown.first().copied()) else {
+            continue;
+        };
+        stats.matched += 1;
+        let chosen = match (predict, places.len()) {
+            (_, 1) => Some(places[0]),
+            (Some(f), _) => f(detections[k].x, detections[k].y).and_then(|(u, v)| {
+                let gi = (u - origin.0) / step[0];
+                let gj = (v - origin.1) / step[1];
+                let mut best = places
+                    .iter()
+                    .map(|&(i, j)| {
+                        let (di, dj) = (i as f64 - gi, j as f64 - gj);
+                        (
+                            (di / PERIOD[0] as f64).powi(2) + (dj / PERIOD[1] as f64).powi(2),
+                            (i, j),
+                        )
+                    })
+                    .collect::<Vec<_>>();
+                best.sort_by(|a, b| a.0.total_cmp(&b.0));
+                // Within half a period of the prediction, and clearly nearer than any repeat.
+                (best[0].0 < 0.25 && best.get(1).is_none_or(|b| b.0 > 4.0 * best[0].0))
+                    .then_some(best[0].1)
+            }),
+            (None, _) => None,
+        };
+        match chosen {
+            Some(p) => own[k] = Some(p),
+            None => stats.ambiguous += 1,
+        }
+    }
+
+    // Grid consistency: a placement stands when at least two of the neighbours that were
+    // placed agree with it (and more agree than disagree).
+    let mut placed: Vec<Option<(usize, usize)>> = vec![None; n];
+    for k in 0..n {
+        let Some((i, j)) = own[k] else { continue };
+        let (mut agree, mut disagree) = (0, 0);
+        for (c, nb) in neigh[k].iter().enumerate() {
+            if c == 4 {
+                continue;
+            }
+            if let Some(q) = nb.and_then(|m| own[m]) {
+                let (a, b) = OFFSETS[c];
+                if q == (
+                    (i as i64 + a as i64) as usize,
+                    (j as i64 + b as i64) as usize,
+                ) {
+                    agree += 1;
+                } else {
+                    disagree += 1;
+                }
+            }
+        }
+        if agree >= 2 && agree > disagree {
+            placed[k] = Some((i, j));
+        } else {
+            stats.inconsistent += 1;
+        }
+    }
+    let from_codeword: Vec<bool> = placed.iter().map(Option::is_some).collect();
+
+    // Propagation to detections whose window is incomplete: the placed neighbours imply a
+    // position; it is taken when at least two of them imply it and none another, the
+    // detection's value is the code's there, and nobody else holds it. Rounds repeat until
+    // nothing changes (a depth edge breaks the agreement, so nothing crosses it).
+    let mut taken: std::collections::HashSet<(usize, usize)> =
+        placed.iter().flatten().copied().collect();
+    loop {
+        let mut newly = Vec::new();
+        for m in 0..n {
+            if placed[m].is_some() || own[m].is_some() || values[m].is_none() {
+                continue;
+            }
+            let mut implied: Vec<(usize, usize)> = Vec::new();
+            for (c, nb) in neigh[m].iter().enumerate() {
+                if c == 4 {
+                    continue;
+                }
+                let Some((qi, qj)) = nb.and_then(|q| placed[q]) else {
+                    continue;
+                };
+                let (a, b) = OFFSETS[c];
+                if let Some(idx) = at(qi as i64 - a as i64, qj as i64 - b as i64) {
+                    implied.push((idx % cols, idx / cols));
+                } else {
+                    implied.push((usize::MAX, usize::MAX));
+                }
+            }
+            let Some(&first) = implied.first() else {
+                continue;
+            };
+            if implied.len() < 3 || implied.iter().any(|&p| p != first) || first.0 == usize::MAX {
+                continue;
+            }
+            let idx = first.1 * cols + first.0;
+            if values[m] == Some(prims.value[idx]) && !taken.contains(&first) {
+                newly.push((m, first));
+            }
+        }
+        if newly.is_empty() {
+            break;
+        }
+        for (m, pos) in newly {
+            if taken.insert(pos) {
+                placed[m] = Some(pos);
+                stats.propagated += 1;
+            }
+        }
+    }
+
+    let out = placed
+        .iter()
+        .enumerate()
+        .filter_map(|(k, p)| {
+            let (i, j) = (*p)?;
+            let idx = j * cols + i;
+            Some(Correspondence {
+                x: detections[k].x,
+                y: detections[k].y,
+                primitive: idx,
+                u: prims.u[idx],
+                v: prims.v[idx],
+                from_codeword: from_codeword[k],
+            })
+        })
+        .collect();
+    (out, stats)
+}
+
+/// The places of the codeword within distance 1 of `word` (or, with one unknown symbol,
+/// matching the 8 known ones); `None` unless exactly one codeword qualifies.
+fn lookup(
+    code: &HashMap<[u8; 9], Vec<(usize, usize)>>,
+    word: [u8; 9],
+    unknown: Option<usize>,
+) -> Option<Vec<(usize, usize)>> {
+    let mut candidates: Vec<[u8; 9]> = Vec::with_capacity(28);
+    match unknown {
+        Some(c) => {
+            for v in 0..4 {
+                let mut w = word;
+                w[c] = v;
+                candidates.push(w);
+            }
+        }
+        None if code.contains_key(&word) => candidates.push(word),
+        None => {
+            for c in 0..9 {
+                for v in 0..4 {
+                    if v != word[c] {
+                        let mut w = word;
+                        w[c] = v;
+                        candidates.push(w);
+                    }
+                }
+            }
+        }
+    }
+    let mut found: Option<&Vec<(usize, usize)>> = None;
+    let mut distinct = 0;
+    for w in candidates {
+        if let Some(p) = code.get(&w) {
+            if found.is_none_or(|f| !std::ptr::eq(f, p)) {
+                distinct += 1;
+                found = Some(p);
+            }
+        }
+    }
+    (distinct == 1).then(|| found.cloned()).flatten()
+}
+
+/// Detections bucketed on a square grid, for neighbour queries.
+struct SpatialIndex {
+    cell: f64,
+    buckets: HashMap<(i64, i64), Vec<usize>>,
+}
+
+impl SpatialIndex {
+    fn new(d: &[Detection]) -> SpatialIndex {
+        let cell = 8.0;
+        let mut buckets: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
+        for (k, p) in d.iter().enumerate() {
+            buckets
+                .entry(((p.x / cell).floor() as i64, (p.y / cell).floor() as i64))
+                .or_default()
+                .push(k);
+        }
+        SpatialIndex { cell, buckets }
+    }
+
+    /// Detections within `r` of (x, y).
+    fn within(&self, x: f64, y: f64, r: f64) -> impl Iterator<Item = usize> + '_ {
+        let c = self.cell;
+        let (bx0, bx1) = (((x - r) / c).floor() as i64, ((x + r) / c).floor() as i64);
+        let (by0, by1) = (((y - r) / c).floor() as i64, ((y + r) / c).floor() as i64);
+        (by0..=by1)
+            .flat_map(move |by| (bx0..=bx1).map(move |bx| (bx, by)))
+            .filter_map(|b| self.buckets.get(&b))
+            .flatten()
+            .copied()
+    }
+
+    /// The detection nearest to (x, y) within `r`, other than `not`.
+    fn nearest(&self, d: &[Detection], x: f64, y: f64, r: f64, not: usize) -> Option<usize> {
+        self.within(x, y, r)
+            .filter(|&k| k != not)
+            .map(|k| (k, (d[k].x - x).powi(2) + (d[k].y - y).powi(2)))
+            .filter(|&(_, d2)| d2 <= r * r)
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(k, _)| k)
+    }
+}
+
+/// The median vectors from a detection to its nearest neighbours near the image's rows (h,
+/// pointing right) and columns (w, pointing down).
+fn grid_vectors(d: &[Detection], index: &SpatialIndex) -> Option<([f64; 2], [f64; 2])> {
+    let mut horiz = Vec::new();
+    let mut vert = Vec::new();
+    for (k, p) in d.iter().enumerate() {
+        let mut near: Vec<(f64, f64, f64)> = index
+            .within(p.x, p.y, 40.0)
+            .filter(|&m| m != k)
+            .map(|m| {
+                let (dx, dy) = (d[m].x - p.x, d[m].y - p.y);
+                (dx * dx + dy * dy, dx, dy)
+            })
+            .collect();
+        near.sort_by(|a, b| a.0.total_cmp(&b.0));
+        for &(_, dx, dy) in near.iter().take(4) {
+            let (dx, dy) = if dx.abs() >= dy.abs() {
+                if dx < 0.0 {
+                    (-dx, -dy)
+                } else {
+                    (dx, dy)
+                }
+            } else if dy < 0.0 {
+                (-dx, -dy)
+            } else {
+                (dx, dy)
+            };
+            if dx.abs() >= dy.abs() {
+                horiz.push([dx, dy]);
+            } else {
+                vert.push([dx, dy]);
+            }
+        }
+    }
+    let median = |mut v: Vec<[f64; 2]>| -> Option<[f64; 2]> {
+        if v.len() < 3 {
+            return None;
+        }
+        let mid = v.len() / 2;
+        v.sort_by(|a, b| a[0].total_cmp(&b[0]));
+        let x = v[mid][0];
+        v.sort_by(|a, b| a[1].total_cmp(&b[1]));
+        Some([x, v[mid][1]])
+    };
+    Some((median(horiz)?, median(vert)?))
+}
+
+/// The 8 neighbours of detection `k` along the grid (window order, `k` itself in the centre):
+/// the four axial ones nearest to the grid vectors' ends, then the diagonal ones where the
+/// local vectors put them.
+fn neighbours(
+    k: usize,
+    d: &[Detection],
+    index: &SpatialIndex,
+    hg: [f64; 2],
+    wg: [f64; 2],
+) -> [Option<usize>; 9] {
+    let p = d[k];
+    let tol = 0.35 * norm(hg).min(norm(wg));
+    let find = |v: [f64; 2], tol: f64| index.nearest(d, p.x + v[0], p.y + v[1], tol, k);
+    let right = find(hg, tol);
+    let left = find([-hg[0], -hg[1]], tol);
+    let down = find(wg, tol);
+    let up = find([-wg[0], -wg[1]], tol);
+    let vec_to =
+        |m: Option<usize>, sign: f64| m.map(|m| [sign * (d[m].x - p.x), sign * (d[m].y - p.y)]);
+    let avg = |a: Option<[f64; 2]>, b: Option<[f64; 2]>, g: [f64; 2]| match (a, b) {
+        (Some(a), Some(b)) => [(a[0] + b[0]) / 2.0, (a[1] + b[1]) / 2.0],
+        (Some(a), None) | (None, Some(a)) => a,
+        (None, None) => g,
+    };
+    let h = avg(vec_to(right, 1.0), vec_to(left, -1.0), hg);
+    let w = avg(vec_to(down, 1.0), vec_to(up, -1.0), wg);
+    let dtol = 0.35 * norm(h).min(norm(w));
+    let diag = |a: f64, b: f64| find([a * h[0] + b * w[0], a * h[1] + b * w[1]], dtol);
+    [
+        diag(-1.0, -1.0),
+        up,
+        diag(1.0, -1.0),
+        left,
+        Some(k),
+        right,
+        diag(-1.0, 1.0),
+        down,
+        diag(1.0, 1.0),
+    ]
+}
+
+/// The symbol of detection `k`: its axis mapped into the projector's grid frame through the
+/// local affine map of the grid (the base axis is the line to its horizontal neighbours), in
+/// 45° steps; `None` when it falls within 7.5° of a boundary between two symbols.
+fn value(
+    k: usize,
+    d: &[Detection],
+    nb: &[Option<usize>; 9],
+    hg: [f64; 2],
+    wg: [f64; 2],
+    step: [f64; 2],
+) -> Option<u8> {
+    let p = d[k];
+    let v = |m: Option<usize>, s: f64| m.map(|m| [s * (d[m].x - p.x), s * (d[m].y - p.y)]);
+    let pick = |a: Option<[f64; 2]>, b: Option<[f64; 2]>, g: [f64; 2]| match (a, b) {
+        (Some(a), Some(b)) => [(a[0] + b[0]) / 2.0, (a[1] + b[1]) / 2.0],
+        (Some(a), None) | (None, Some(a)) => a,
+        (None, None) => g,
+    };
+    let h = pick(v(nb[5], 1.0), v(nb[3], -1.0), hg);
+    let w = pick(v(nb[7], 1.0), v(nb[1], -1.0), wg);
+    // Camera direction → projector direction: A = [h/dx, w/dy], solve A q = axis.
+    let (ax, ay) = (p.axis.cos(), p.axis.sin());
+    let (a11, a12, a21, a22) = (
+        h[0] / step[0],
+        w[0] / step[1],
+        h[1] / step[0],
+        w[1] / step[1],
+    );
+    let det = a11 * a22 - a12 * a21;
+    if det.abs() < 1e-9 {
+        return None;
+    }
+    let qx = (a22 * ax - a12 * ay) / det;
+    let qy = (-a21 * ax + a11 * ay) / det;
+    let angle = qy.atan2(qx).rem_euclid(std::f64::consts::PI).to_degrees();
+    let bins = angle / 45.0;
+    let nearest = bins.round();
+    if (bins - nearest).abs() * 45.0 > 15.0 {
+        return None;
+    }
+    Some((nearest as i64).rem_euclid(4) as u8)
+}
+
+fn norm(v: [f64; 2]) -> f64 {
+    v[0].hypot(v[1])
+}

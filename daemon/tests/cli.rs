@@ -1324,6 +1324,109 @@ fn xpoint_pattern_is_written_with_a_file_that_states_every_primitive() {
 }
 
 #[test]
+fn single_shot_reconstructs_one_image_of_the_x_point_pattern() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let scene_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenes/demo.toml");
+    let sim_dir = dir.path().join("sim");
+    let o = ris(&["simulate", "--scene", s(&scene_path), "--out", s(&sim_dir)]);
+    assert!(o.status.success(), "simulate: {}", stderr(&o));
+    let xp = dir.path().join("xp");
+    let o = ris(&[
+        "patterns",
+        "--xpoint",
+        "--projector",
+        "1024x768",
+        "--step",
+        "14,14",
+        "--out",
+        s(&xp),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    // The camera's view of the pattern, rendered by the simulator from the PNG as projected.
+    let scene = ris_core::sim::Scene::load(&scene_path).expect("scene");
+    let sim = ris_core::sim::Simulator::new(scene);
+    let png = ris_core::image::GrayImage::load(&xp.join("xpoint.png")).expect("xpoint.png");
+    let mask = ris_core::pattern::ProjectionMask {
+        width: png.width,
+        height: png.height,
+        values: png.to_levels().iter().map(|v| v / 255.0).collect(),
+    };
+    let frame = sim.frame_with(
+        &sim.layout(),
+        ris_core::pattern::Pattern::White,
+        Some(&mask),
+        1.0,
+        5,
+    );
+    let image = dir.path().join("frame.png");
+    frame.save_png(&image).expect("frame");
+    let cloud_path = dir.path().join("single.ply");
+    let o = ris(&[
+        "single-shot",
+        "--sensor",
+        s(&sim_dir.join("sensor.toml")),
+        "--pattern",
+        s(&xp.join("xpoint.toml")),
+        s(&image),
+        "--out",
+        s(&cloud_path),
+    ]);
+    assert!(o.status.success(), "single-shot: {}", stderr(&o));
+    let cloud = ris_core::cloud::PointCloud::read_ply(&cloud_path).expect("cloud");
+    assert!(cloud.len() > 1500, "{} points", cloud.len());
+    assert_eq!(cloud.organised(), Some([800, 600]));
+    // Each point against the surface the camera sees at its pixel (the corner is within half a
+    // pixel of it, so on slopes the two differ by a little).
+    let truth = &sim.cache.truth;
+    let mut err: Vec<f64> = cloud
+        .points
+        .iter()
+        .zip(&cloud.pixels)
+        .filter_map(|(p, &px)| {
+            let t = truth.xyz[px as usize];
+            t[0].is_finite().then(|| {
+                ((p[0] - t[0]).powi(2) + (p[1] - t[1]).powi(2) + (p[2] - t[2]).powi(2)).sqrt()
+                    as f64
+            })
+        })
+        .collect();
+    err.sort_by(f64::total_cmp);
+    let q = |f: f64| err[((err.len() - 1) as f64 * f) as usize];
+    assert!(
+        q(0.5) < 0.8 && q(0.98) < 3.0,
+        "median {:.2} mm, 98 % {:.2} mm",
+        q(0.5),
+        q(0.98)
+    );
+    // A pattern for another projector is refused by name.
+    let other = dir.path().join("other");
+    let o = ris(&[
+        "patterns",
+        "--xpoint",
+        "--projector",
+        "800x600",
+        "--out",
+        s(&other),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = ris(&[
+        "single-shot",
+        "--sensor",
+        s(&sim_dir.join("sensor.toml")),
+        "--pattern",
+        s(&other.join("xpoint.toml")),
+        s(&image),
+        "--out",
+        s(&cloud_path),
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("800x600"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
 fn convert_takes_a_cloud_through_e57_and_back() {
     let dir = tempfile::tempdir().expect("tmp");
     let mut cloud = ris_core::cloud::PointCloud::default();

@@ -184,6 +184,49 @@ impl Reconstructor {
         }
     }
 
+    /// The camera this sensor reconstructs for.
+    pub fn camera(&self) -> &Pinhole {
+        &self.camera
+    }
+
+    /// The point seen at sub-pixel camera position (x, y) and lit by projector point (u, v)
+    /// (an X-point of a single-shot frame), in the sensor world frame; `None` where the model
+    /// has no answer (behind the camera, off the reference map). The parallax model uses the
+    /// projector coordinate along its reference's code axis and the residual of the nearest
+    /// pixel.
+    pub fn point_at(&self, x: f64, y: f64, u: f64, v: f64) -> Option<Vec3> {
+        let (xn, yn) = self.camera.normalized(x, y);
+        match &self.model {
+            Model::Parallax {
+                geometry,
+                axis,
+                residual,
+            } => {
+                let code = match axis {
+                    CodeAxis::Column => u,
+                    CodeAxis::Row => v,
+                };
+                let d = self.camera.r.transpose() * Vec3::new(xn, yn, 1.0);
+                let (pp, _) = geometry.point_for_direction(&d, code, 0.0)?;
+                let mut p = pp.point;
+                if let Some(res) = residual {
+                    let (w, h) = (self.camera.width as f64, self.camera.height as f64);
+                    let (px, py) = (x.round().clamp(0.0, w - 1.0), y.round().clamp(0.0, h - 1.0));
+                    let [a, b, c] = res[py as usize * self.camera.width as usize + px as usize];
+                    let m = pp.shift;
+                    let e = f64::from(a) * m * m + f64::from(b) * m + f64::from(c);
+                    let dd = p - geometry.camera_center();
+                    if dd.z.abs() > 1e-12 {
+                        let k = (p.z - e - geometry.camera_center().z) / dd.z;
+                        p = geometry.camera_center() + dd * k;
+                    }
+                }
+                Some(p)
+            }
+            Model::Classical(c) => c.point(xn, yn, u, Some(v)),
+        }
+    }
+
     /// Reconstruct every valid pixel into the sensor world frame (parallel over rows).
     pub fn reconstruct(&self, decoded: &Decoded) -> Result<PointCloud> {
         check_size(

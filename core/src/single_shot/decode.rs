@@ -28,6 +28,8 @@ pub struct Correspondence {
     pub v: f64,
     /// Whether its own codeword placed it (else a neighbour did).
     pub from_codeword: bool,
+    /// The detection's asymmetry (see [`Detection::asymmetry`]).
+    pub asymmetry: f64,
 }
 
 /// What the decoder found, for reports.
@@ -257,6 +259,7 @@ pub fn decode(
                 u: prims.u[idx],
                 v: prims.v[idx],
                 from_codeword: from_codeword[k],
+                asymmetry: detections[k].asymmetry,
             })
         })
         .collect();

@@ -23,6 +23,9 @@ pub struct Detection {
     pub elongation: f64,
     /// Local contrast (brightest level near the corner minus the darkest), grey levels.
     pub contrast: f32,
+    /// What is left of the light's variance after turning it half a turn about the corner (0
+    /// for a whole primitive; texture, cuts by shadows and edges raise it).
+    pub asymmetry: f64,
 }
 
 /// Settings of [`detect`].
@@ -38,6 +41,8 @@ pub struct DetectParams {
     pub radius: f64,
     /// Least elongation for the axis to be read.
     pub min_elongation: f64,
+    /// Most asymmetry left at the corner: Σ(I(c+d) − I(c−d))² over the light's variance.
+    pub max_asymmetry: f64,
 }
 
 impl Default for DetectParams {
@@ -48,6 +53,7 @@ impl Default for DetectParams {
             min_saddle: 0.004,
             radius: 5.0,
             min_elongation: 0.25,
+            max_asymmetry: 1.0,
         }
     }
 }
@@ -155,7 +161,12 @@ fn refine(
     let (lo, hi) = (f64::from(range.0), f64::from(range.1));
     let contrast = range.1 - range.0;
     let (cx, cy) = saddle_of_quadratic(s, width, height, x, y).unwrap_or((x as f64, y as f64));
-    let (cx, cy) = symmetric_centre(s, width, height, cx, cy, p.radius)?;
+    let (cx, cy, asymmetry) = symmetric_centre(s, width, height, cx, cy, p.radius)?;
+    // A primitive cut by a shadow, an occluding edge or the end of the surface is not
+    // point-symmetric, and its centre of symmetry is not its corner.
+    if asymmetry > p.max_asymmetry {
+        return None;
+    }
     // A primitive's bright quadrants reach into a small ring about its corner; the dark gaps
     // between primitives have saddles too, with only dark close about them.
     let ring = 0.45 * p.radius;
@@ -221,6 +232,7 @@ fn refine(
         axis,
         elongation,
         contrast,
+        asymmetry,
     })
 }
 
@@ -297,7 +309,7 @@ fn sample(s: &[f32], width: usize, height: usize, x: f64, y: f64) -> Option<(f64
     Some((v, gx, gy))
 }
 
-/// The centre of point symmetry of the light about (x, y): an X-point primitive is the same
+/// The centre of point symmetry of the light about (x, y), with the asymmetry left there: an X-point primitive is the same
 /// turned half a turn about its corner, and stays so under the affine part of the camera's
 /// view. Gauss–Newton on Σ (I(c + d) − I(c − d))² over a disc of `radius`, which uses every
 /// pixel of the primitive rather than the few at its corner.
@@ -308,10 +320,12 @@ fn symmetric_centre(
     x: f64,
     y: f64,
     radius: f64,
-) -> Option<(f64, f64)> {
+) -> Option<(f64, f64, f64)> {
     let (mut cx, mut cy) = (x, y);
     let r = radius.ceil() as i32;
+    let mut asymmetry = 1.0;
     for _ in 0..6 {
+        let (mut ee, mut energy, mut sum, mut count) = (0f64, 0f64, 0f64, 0f64);
         let (mut h11, mut h12, mut h22, mut g1, mut g2) = (0f64, 0f64, 0f64, 0f64, 0f64);
         for dy in 0..=r {
             for dx in -r..=r {
@@ -330,6 +344,10 @@ fn symmetric_centre(
                     return None;
                 };
                 let e = p - q;
+                ee += e * e;
+                energy += p * p + q * q;
+                sum += p + q;
+                count += 2.0;
                 let (jx, jy) = (px - qx, py - qy);
                 h11 += jx * jx;
                 h12 += jx * jy;
@@ -338,6 +356,9 @@ fn symmetric_centre(
                 g2 += jy * e;
             }
         }
+        let mean = sum / count.max(1.0);
+        let spread = energy - count * mean * mean;
+        asymmetry = if spread > 0.0 { ee / spread } else { 1.0 };
         let det = h11 * h22 - h12 * h12;
         if det.abs() < 1e-12 {
             return None;
@@ -353,5 +374,5 @@ fn symmetric_centre(
             break;
         }
     }
-    Some((cx, cy))
+    Some((cx, cy, asymmetry))
 }

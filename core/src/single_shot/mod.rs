@@ -5,7 +5,9 @@ pub mod code;
 mod decode;
 mod detect;
 mod pattern;
+mod reconstruct;
 
 pub use decode::{decode, Correspondence, DecodeStats, Predict};
 pub use detect::{detect, DetectParams, Detection};
 pub use pattern::{PatternSection, Primitives, XPointPattern, MIN_STEP};
+pub use reconstruct::{reconstruct, ReferencePrediction};

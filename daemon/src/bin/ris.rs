@@ -244,6 +244,21 @@ enum Command {
         #[command(flatten)]
         decode: DecodeArgs,
     },
+    /// Reconstruct one camera image of the X-point pattern (single shot) into a binary PLY in
+    /// the sensor world frame.
+    SingleShot {
+        /// Sensor file (TOML); its [reference] recording predicts where X-points lie.
+        #[arg(long)]
+        sensor: PathBuf,
+        /// The pattern file written with the projected image (xpoint.toml).
+        #[arg(long)]
+        pattern: PathBuf,
+        /// The camera image (8- or 16-bit grey PNG).
+        image: PathBuf,
+        /// Output PLY file.
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Cameras: list what can be opened, grab frames.
     #[command(subcommand)]
     Camera(CameraCommand),
@@ -576,6 +591,14 @@ fn main() -> Result<()> {
                 drop_outside,
                 &out,
             )?;
+        }
+        Command::SingleShot {
+            sensor,
+            pattern,
+            image,
+            out,
+        } => {
+            commands::single_shot::run(&sensor, &pattern, &image, &out)?;
         }
         #[cfg(all(feature = "aravis", feature = "projector"))]
         Command::VirtualCamera {

@@ -15,6 +15,7 @@ pub mod reconstruct;
 pub mod register;
 pub mod scan;
 pub mod simulate;
+pub mod single_shot;
 #[cfg(all(feature = "aravis", feature = "projector"))]
 pub mod virtual_cell;
 

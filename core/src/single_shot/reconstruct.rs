@@ -1,0 +1,87 @@
+//! Single-shot points in the sensor's frame: each decoded X-point through the sensor model
+//! (parallax with the Gray-code reference, or classical), so single-shot and multi-shot clouds
+//! of one sensor land in the same frame; and the prediction the decoder needs, from the decoded
+//! reference recording.
+
+use rayon::prelude::*;
+
+use super::Correspondence;
+use crate::cloud::PointCloud;
+use crate::decode::Decoded;
+use crate::sensor::Reconstructor;
+
+/// The projector point the reference plane gives camera point (x, y): the decoded reference's
+/// column and row maps, bilinear over the valid ones of the four pixels about it.
+pub struct ReferencePrediction<'a> {
+    reference: &'a Decoded,
+    rows: &'a [f32],
+}
+
+impl<'a> ReferencePrediction<'a> {
+    /// `None` when the reference has no row codes (the code's repeat along rows could not be
+    /// chosen).
+    pub fn new(reference: &'a Decoded) -> Option<ReferencePrediction<'a>> {
+        Some(ReferencePrediction {
+            rows: reference.row.as_deref()?,
+            reference,
+        })
+    }
+
+    /// The predicted projector point at camera (x, y).
+    pub fn at(&self, x: f64, y: f64) -> Option<(f64, f64)> {
+        let (w, h) = (
+            self.reference.width as usize,
+            self.reference.height as usize,
+        );
+        if !(x >= 0.0 && y >= 0.0 && x < (w - 1) as f64 && y < (h - 1) as f64) {
+            return None;
+        }
+        let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+        let (ax, ay) = (x - x0 as f64, y - y0 as f64);
+        let (mut su, mut sv, mut sw) = (0.0, 0.0, 0.0);
+        for (dx, dy, wt) in [
+            (0, 0, (1.0 - ax) * (1.0 - ay)),
+            (1, 0, ax * (1.0 - ay)),
+            (0, 1, (1.0 - ax) * ay),
+            (1, 1, ax * ay),
+        ] {
+            let i = (y0 + dy) * w + x0 + dx;
+            let (c, r) = (self.reference.col[i], self.rows[i]);
+            if c.is_finite() && r.is_finite() {
+                su += wt * f64::from(c);
+                sv += wt * f64::from(r);
+                sw += wt;
+            }
+        }
+        (sw > 1e-6).then(|| (su / sw, sv / sw))
+    }
+}
+
+/// The cloud of `matches` through `rec`: one point per X-point, organised by the camera pixel
+/// nearest its corner, its confidence 1 − the corner's asymmetry, flagged outside the sensor's
+/// calibrated volume where it states one.
+pub fn reconstruct(matches: &[Correspondence], rec: &Reconstructor) -> PointCloud {
+    let cam = rec.camera();
+    let (w, h) = (cam.width, cam.height);
+    let found: Vec<([f32; 3], u32, f32)> = matches
+        .par_iter()
+        .filter_map(|m| {
+            let p = rec.point_at(m.x, m.y, m.u, m.v)?;
+            let px = (m.x.round().clamp(0.0, f64::from(w) - 1.0) as u32)
+                + (m.y.round().clamp(0.0, f64::from(h) - 1.0) as u32) * w;
+            let confidence = (1.0 - m.asymmetry).clamp(0.0, 1.0) as f32;
+            Some(([p.x as f32, p.y as f32, p.z as f32], px, confidence))
+        })
+        .collect();
+    let mut cloud = PointCloud {
+        points: found.iter().map(|f| f.0).collect(),
+        confidence: found.iter().map(|f| f.2).collect(),
+        pixels: found.iter().map(|f| f.1).collect(),
+        image: Some([w, h]),
+        ..Default::default()
+    };
+    if let Some(volume) = &rec.volume {
+        cloud.outside = cloud.points.iter().map(|p| !volume.contains(p)).collect();
+    }
+    cloud
+}

@@ -1,0 +1,96 @@
+//! `ris single-shot`: one camera image of the X-point pattern + the sensor file → a cloud in
+//! the sensor world frame (the same frame as the sensor's multi-shot clouds).
+
+use std::path::Path;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use ris_core::capture::CaptureSet;
+use ris_core::cloud::PointCloud;
+use ris_core::decode::{decode, DecodeParams};
+use ris_core::image::GrayImage;
+use ris_core::sensor::{ModelChoice, Reconstructor, Sensor};
+use ris_core::single_shot::{self, DetectParams, ReferencePrediction, XPointPattern};
+
+/// Decode `image` (the X-point pattern of `pattern` seen by `sensor`'s camera) and write the
+/// cloud to `out`; returns it. The sensor's Gray-code reference recording predicts where each
+/// X-point lies in the projector, which picks the code's repeat.
+pub fn run(sensor: &Path, pattern: &Path, image: &Path, out: &Path) -> Result<PointCloud> {
+    let s = Sensor::load(sensor)
+        .with_context(|| format!("reading sensor file {}", sensor.display()))?;
+    let pattern = XPointPattern::load(pattern)
+        .with_context(|| format!("reading pattern file {}", pattern.display()))?;
+    if (pattern.pattern.width, pattern.pattern.height) != s.projector_size {
+        anyhow::bail!(
+            "{}: the pattern is for a {}x{} projector, the sensor's is {}x{}",
+            image.display(),
+            pattern.pattern.width,
+            pattern.pattern.height,
+            s.projector_size.0,
+            s.projector_size.1
+        );
+    }
+    let reference_dir = s.reference.as_ref().with_context(|| {
+        format!(
+            "{}: single-shot decoding needs the sensor's [reference] recording (it predicts each X-point's place in the projector)",
+            sensor.display()
+        )
+    })?;
+    let params = DecodeParams::default();
+    let t = Instant::now();
+    let rec = Reconstructor::new(&s, ModelChoice::Auto, &params)
+        .with_context(|| format!("preparing sensor {}", sensor.display()))?;
+    let reference = decode(
+        &CaptureSet::load(reference_dir)
+            .with_context(|| format!("reading {}", reference_dir.display()))?,
+        &params,
+    )
+    .with_context(|| format!("decoding {}", reference_dir.display()))?;
+    let predict = ReferencePrediction::new(&reference).with_context(|| {
+        format!(
+            "{}: the reference recording has no row codes, which single-shot decoding needs",
+            reference_dir.display()
+        )
+    })?;
+    let prepare = t.elapsed();
+    let img = GrayImage::load(image).with_context(|| format!("reading {}", image.display()))?;
+    if (img.width, img.height) != (s.camera.width, s.camera.height) {
+        anyhow::bail!(
+            "{}: the image is {}x{}, the sensor's camera {}x{}",
+            image.display(),
+            img.width,
+            img.height,
+            s.camera.width,
+            s.camera.height
+        );
+    }
+    let t = Instant::now();
+    let levels = img.to_levels();
+    let found = single_shot::detect(
+        &levels,
+        img.width as usize,
+        img.height as usize,
+        &DetectParams::default(),
+    );
+    let at = |x: f64, y: f64| predict.at(x, y);
+    let (matches, stats) = single_shot::decode(&found, &pattern, Some(&at));
+    let cloud = single_shot::reconstruct(&matches, &rec);
+    let took = t.elapsed();
+    tracing::info!(?stats, "single-shot decoding");
+    cloud
+        .write_ply(out)
+        .with_context(|| format!("writing {}", out.display()))?;
+    println!(
+        "{} points from {} X-points ({} by their codeword, {} from a neighbour; {} codewords read, {} matched); prepare {:.0} ms, decode + reconstruct {:.0} ms; wrote {}",
+        cloud.len(),
+        found.len(),
+        matches.iter().filter(|m| m.from_codeword).count(),
+        stats.propagated,
+        stats.windows,
+        stats.matched,
+        prepare.as_secs_f64() * 1e3,
+        took.as_secs_f64() * 1e3,
+        out.display()
+    );
+    Ok(cloud)
+}

@@ -208,20 +208,16 @@ impl Reconstructor {
                 };
                 let d = self.camera.r.transpose() * Vec3::new(xn, yn, 1.0);
                 let (pp, _) = geometry.point_for_direction(&d, code, 0.0)?;
-                let mut p = pp.point;
-                if let Some(res) = residual {
-                    let (w, h) = (self.camera.width as f64, self.camera.height as f64);
-                    let (px, py) = (x.round().clamp(0.0, w - 1.0), y.round().clamp(0.0, h - 1.0));
-                    let [a, b, c] = res[py as usize * self.camera.width as usize + px as usize];
-                    let m = pp.shift;
-                    let e = f64::from(a) * m * m + f64::from(b) * m + f64::from(c);
-                    let dd = p - geometry.camera_center();
-                    if dd.z.abs() > 1e-12 {
-                        let k = (p.z - e - geometry.camera_center().z) / dd.z;
-                        p = geometry.camera_center() + dd * k;
+                Some(match residual {
+                    Some(res) => {
+                        let (w, h) = (self.camera.width as f64, self.camera.height as f64);
+                        let (px, py) =
+                            (x.round().clamp(0.0, w - 1.0), y.round().clamp(0.0, h - 1.0));
+                        let i = py as usize * self.camera.width as usize + px as usize;
+                        residual_corrected(geometry, res[i], &pp)
                     }
-                }
-                Some(p)
+                    None => pp.point,
+                })
             }
             Model::Classical(c) => c.point(xn, yn, u, Some(v)),
         }
@@ -251,17 +247,10 @@ impl Reconstructor {
                         else {
                             continue;
                         };
-                        let mut p = pp.point;
-                        if let Some(res) = residual {
-                            let [a, b, cc] = res[i];
-                            let m = pp.shift;
-                            let e = f64::from(a) * m * m + f64::from(b) * m + f64::from(cc);
-                            let d = p - geometry.camera_center();
-                            if d.z.abs() > 1e-12 {
-                                let s = (p.z - e - geometry.camera_center().z) / d.z;
-                                p = geometry.camera_center() + d * s;
-                            }
-                        }
+                        let p = match residual {
+                            Some(res) => residual_corrected(geometry, res[i], &pp),
+                            None => pp.point,
+                        };
                         *out = [p.x as f32, p.y as f32, p.z as f32];
                     }
                 });
@@ -332,6 +321,20 @@ impl Reconstructor {
             }
         });
         Ok(out)
+    }
+}
+
+/// `pp` moved along its camera ray by the calibrated height residual e(m) = a m² + b m + c of
+/// its pixel (Eq. 3.28), m being its shift along the epipolar line.
+fn residual_corrected(geometry: &Parallax, [a, b, c]: [f32; 3], pp: &ParallaxPoint) -> Vec3 {
+    let m = pp.shift;
+    let e = f64::from(a) * m * m + f64::from(b) * m + f64::from(c);
+    let d = pp.point - geometry.camera_center();
+    if d.z.abs() > 1e-12 {
+        let k = (pp.point.z - e - geometry.camera_center().z) / d.z;
+        geometry.camera_center() + d * k
+    } else {
+        pp.point
     }
 }
 

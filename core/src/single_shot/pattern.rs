@@ -180,6 +180,40 @@ impl XPointPattern {
                 format!("{} must be positive", p.pattern.radius),
             ));
         }
+        if p.pattern.width == 0 || p.pattern.height == 0 || p.pattern.step.contains(&0) {
+            return Err(Error::invalid(
+                &ctx,
+                "pattern",
+                format!(
+                    "a {}x{} image with steps {:?} holds no pattern",
+                    p.pattern.width, p.pattern.height, p.pattern.step
+                ),
+            ));
+        }
+        // The decoder reads the primitives as a whole grid, row by row.
+        let [cols, rows] = p.grid();
+        if cols < 3 || rows < 3 || cols * rows != n {
+            return Err(Error::invalid(
+                &ctx,
+                "primitives",
+                format!("{n} primitives on a {cols}x{rows} grid; every cell of a grid of at least 3x3 needs one"),
+            ));
+        }
+        let q = &p.primitives;
+        if let Some(k) = (0..n).find(|&k| {
+            q.i[k] as usize != k % cols
+                || q.j[k] as usize != k / cols
+                || !(q.u[k].is_finite() && q.v[k].is_finite())
+        }) {
+            return Err(Error::invalid(
+                &ctx,
+                "primitives",
+                format!(
+                    "entry {k} (i {}, j {}, u {}, v {}) is out of row-by-row grid order or not finite",
+                    q.i[k], q.j[k], q.u[k], q.v[k]
+                ),
+            ));
+        }
         Ok(p)
     }
 

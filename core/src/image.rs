@@ -150,16 +150,28 @@ impl GrayImage {
     }
 }
 
-/// Write an 8-bit RGB image as PNG through a temporary file and a rename.
-pub fn save_rgb_png(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<()> {
+/// An 8-bit RGB image encoded as PNG in memory.
+pub fn encode_rgb_png(width: u32, height: u32, rgb: &[u8]) -> Result<Vec<u8>> {
     let mut buf = Vec::new();
     use image::ImageEncoder;
     image::codecs::png::PngEncoder::new(&mut buf)
         .write_image(rgb, width, height, image::ExtendedColorType::Rgb8)
         .map_err(|e| Error::Image {
-            path: path.to_path_buf(),
+            path: std::path::PathBuf::from("(in memory)"),
             message: e.to_string(),
         })?;
+    Ok(buf)
+}
+
+/// Write an 8-bit RGB image as PNG through a temporary file and a rename.
+pub fn save_rgb_png(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<()> {
+    let buf = encode_rgb_png(width, height, rgb).map_err(|e| match e {
+        Error::Image { message, .. } => Error::Image {
+            path: path.to_path_buf(),
+            message,
+        },
+        other => other,
+    })?;
     write_atomic(path, &buf)
 }
 

@@ -1327,9 +1327,6 @@ fn xpoint_pattern_is_written_with_a_file_that_states_every_primitive() {
 fn single_shot_reconstructs_one_image_of_the_x_point_pattern() {
     let dir = tempfile::tempdir().expect("tmp");
     let scene_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenes/demo.toml");
-    let sim_dir = dir.path().join("sim");
-    let o = ris(&["simulate", "--scene", s(&scene_path), "--out", s(&sim_dir)]);
-    assert!(o.status.success(), "simulate: {}", stderr(&o));
     let xp = dir.path().join("xp");
     let o = ris(&[
         "patterns",
@@ -1342,24 +1339,21 @@ fn single_shot_reconstructs_one_image_of_the_x_point_pattern() {
         s(&xp),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    // The camera's view of the pattern, rendered by the simulator from the PNG as projected.
+    // The sensor file, and the camera's view of the pattern as projected.
+    let sim_dir = dir.path().join("sim");
+    let o = ris(&[
+        "simulate",
+        "--scene",
+        s(&scene_path),
+        "--out",
+        s(&sim_dir),
+        "--show",
+        s(&xp.join("xpoint.png")),
+    ]);
+    assert!(o.status.success(), "simulate: {}", stderr(&o));
+    let image = sim_dir.join("shown.png");
     let scene = ris_core::sim::Scene::load(&scene_path).expect("scene");
     let sim = ris_core::sim::Simulator::new(scene);
-    let png = ris_core::image::GrayImage::load(&xp.join("xpoint.png")).expect("xpoint.png");
-    let mask = ris_core::pattern::ProjectionMask {
-        width: png.width,
-        height: png.height,
-        values: png.to_levels().iter().map(|v| v / 255.0).collect(),
-    };
-    let frame = sim.frame_with(
-        &sim.layout(),
-        ris_core::pattern::Pattern::White,
-        Some(&mask),
-        1.0,
-        5,
-    );
-    let image = dir.path().join("frame.png");
-    frame.save_png(&image).expect("frame");
     let cloud_path = dir.path().join("single.ply");
     let o = ris(&[
         "single-shot",
@@ -1370,11 +1364,54 @@ fn single_shot_reconstructs_one_image_of_the_x_point_pattern() {
         s(&image),
         "--out",
         s(&cloud_path),
+        "--fused",
+        s(&dir.path().join("fused.png")),
+        "--range",
+        "1450,1650",
     ]);
     assert!(o.status.success(), "single-shot: {}", stderr(&o));
     let cloud = ris_core::cloud::PointCloud::read_ply(&cloud_path).expect("cloud");
     assert!(cloud.len() > 1500, "{} points", cloud.len());
     assert_eq!(cloud.organised(), Some([800, 600]));
+    // The fusion picture: at every point's own pixel, the colour of its distance from the
+    // camera (red 1450 mm to blue 1650 mm), shaded by the picture by a factor in [0.45, 1].
+    let fused = image::open(dir.path().join("fused.png"))
+        .expect("fused.png")
+        .into_rgb8();
+    assert_eq!((fused.width(), fused.height()), (800 + 120, 600));
+    let range = ris_core::single_shot::FusionRange::new(1450.0, 1650.0, "t").expect("range");
+    let eye = sim.scene.camera.center();
+    let mut off = 0;
+    for (p, &px) in cloud.points.iter().zip(&cloud.pixels) {
+        let d = ((f64::from(p[0]) - eye.x).powi(2)
+            + (f64::from(p[1]) - eye.y).powi(2)
+            + (f64::from(p[2]) - eye.z).powi(2))
+        .sqrt();
+        let want = range.colour(d);
+        let got = fused.get_pixel(px % 800, px / 800).0;
+        let top = want.iter().copied().max().unwrap_or(1).max(1);
+        let shade = f64::from(got.iter().copied().max().unwrap_or(0)) / f64::from(top);
+        let fits = (0.44..=1.01).contains(&shade)
+            && want
+                .iter()
+                .zip(got)
+                .all(|(w, g)| (f64::from(*w) * shade - f64::from(g)).abs() <= 3.0);
+        if !fits {
+            off += 1;
+        }
+    }
+    assert_eq!(off, 0, "{off} of {} points coloured wrongly", cloud.len());
+    // Near red and far blue both appear: the boxes stand out from the floor.
+    let (mut reddish, mut bluish) = (0, 0);
+    for px in fused.pixels() {
+        let [r, _, b] = px.0;
+        reddish += usize::from(r > 150 && b < 40);
+        bluish += usize::from(b > 150 && r < 40);
+    }
+    assert!(
+        reddish > 1000 && bluish > 1000,
+        "{reddish} red, {bluish} blue pixels"
+    );
     // Each point against the surface the camera sees at its pixel (the corner is within half a
     // pixel of it, so on slopes the two differ by a little).
     let truth = &sim.cache.truth;
@@ -1424,6 +1461,27 @@ fn single_shot_reconstructs_one_image_of_the_x_point_pattern() {
         "{}",
         stderr(&o)
     );
+    for bad in ["1650,1450", "near,far", "1450"] {
+        let o = ris(&[
+            "single-shot",
+            "--sensor",
+            s(&sim_dir.join("sensor.toml")),
+            "--pattern",
+            s(&xp.join("xpoint.toml")),
+            s(&image),
+            "--out",
+            s(&cloud_path),
+            "--fused",
+            s(&dir.path().join("bad.png")),
+            "--range",
+            bad,
+        ]);
+        assert!(
+            !o.status.success() && stderr(&o).contains("--range"),
+            "{bad}: {}",
+            stderr(&o)
+        );
+    }
 }
 
 #[test]

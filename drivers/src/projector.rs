@@ -24,6 +24,15 @@ impl Slide {
         }
     }
 
+    /// A picture (8-bit, the projector's size, row-major) shown as it is: white under the
+    /// picture as its mask.
+    pub fn picture(width: u32, height: u32, pixels: &[u8]) -> Slide {
+        Slide {
+            pattern: Pattern::White,
+            mask: Some(Arc::new(ProjectionMask::picture(width, height, pixels))),
+        }
+    }
+
     /// The 8-bit image of this slide on a projector with `layout`.
     pub fn render(&self, layout: &CodeLayout) -> Vec<u8> {
         let mut px = layout.render(self.pattern);

@@ -12,7 +12,7 @@
 //! How far leaving out any one region moves the fit is reported as its stability.
 
 mod alignment;
-mod canvas;
+pub(crate) mod canvas;
 mod conditioning;
 mod consensus;
 mod coverage;

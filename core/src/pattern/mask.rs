@@ -28,6 +28,17 @@ impl ProjectionMask {
         }
     }
 
+    /// An 8-bit projector picture (row-major, `width` × `height`) as a mask over white: a
+    /// white slide under it shows exactly the picture, so any backend projects any image
+    /// (the single-shot pattern) through the slides it already knows.
+    pub fn picture(width: u32, height: u32, pixels: &[u8]) -> ProjectionMask {
+        ProjectionMask {
+            width,
+            height,
+            values: pixels.iter().map(|&v| f32::from(v) / 255.0).collect(),
+        }
+    }
+
     /// The 16-bit image stored beside a capture set.
     pub fn to_image(&self) -> GrayImage {
         GrayImage::from_u16(

@@ -4,10 +4,12 @@
 pub mod code;
 mod decode;
 mod detect;
+mod fusion;
 mod pattern;
 mod reconstruct;
 
 pub use decode::{decode, Correspondence, DecodeStats, Predict};
 pub use detect::{detect, DetectParams, Detection};
+pub use fusion::{fuse, Fused, FusionRange};
 pub use pattern::{PatternSection, Primitives, XPointPattern, MIN_STEP};
 pub use reconstruct::{reconstruct, ReferencePrediction};

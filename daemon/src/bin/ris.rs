@@ -258,6 +258,13 @@ enum Command {
         /// Output PLY file.
         #[arg(long)]
         out: PathBuf,
+        /// Also write the fusion picture: distance colours over the camera image.
+        #[arg(long)]
+        fused: Option<PathBuf>,
+        /// With --fused: distances NEAR,FAR in mm drawn red and blue (default: the points' 2nd
+        /// to 98th percentile, rounded).
+        #[arg(long)]
+        range: Option<String>,
     },
     /// Cameras: list what can be opened, grab frames.
     #[command(subcommand)]
@@ -342,6 +349,10 @@ enum Command {
         /// Output directory (must not exist or be empty).
         #[arg(long)]
         out: PathBuf,
+        /// Also render the camera's view of this projector picture (8-bit grey PNG of the
+        /// projector's size, such as xpoint.png) to OUT/shown.png.
+        #[arg(long)]
+        show: Option<PathBuf>,
     },
     /// Ask a running risd for a scan, follow its progress and write the clouds and report
     /// into OUT/SCAN_ID/ (exit status 3 when the inspected part fails, 4 when it was not
@@ -597,8 +608,23 @@ fn main() -> Result<()> {
             pattern,
             image,
             out,
+            fused,
+            range,
         } => {
-            commands::single_shot::run(&sensor, &pattern, &image, &out)?;
+            anyhow::ensure!(
+                range.is_none() || fused.is_some(),
+                "--range colours the fusion picture: give --fused FUSED.png too"
+            );
+            let range = range
+                .map(|r| commands::parse_range(&r, "--range"))
+                .transpose()?;
+            commands::single_shot::run(
+                &sensor,
+                &pattern,
+                &image,
+                &out,
+                fused.as_deref().map(|f| (f, range)),
+            )?;
         }
         #[cfg(all(feature = "aravis", feature = "projector"))]
         Command::VirtualCamera {
@@ -714,8 +740,11 @@ fn main() -> Result<()> {
         } => {
             commands::precision::run(&sensor, &captures, &decode.params(), &out, scale)?;
         }
-        Command::Simulate { scene, out } => {
+        Command::Simulate { scene, out, show } => {
             commands::simulate::run(&scene, &out)?;
+            if let Some(picture) = show {
+                commands::simulate::show(&scene, &picture, &out)?;
+            }
         }
         Command::Scan {
             connect,

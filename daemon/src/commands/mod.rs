@@ -50,6 +50,23 @@ pub fn parse_size(s: &str) -> Result<(u32, u32)> {
     Ok((w, h))
 }
 
+/// Parse a distance range `NEAR,FAR` in mm (`what` names the argument in errors).
+pub fn parse_range(s: &str, what: &str) -> Result<ris_core::single_shot::FusionRange> {
+    let (near, far) = s
+        .split_once(',')
+        .with_context(|| format!("{what} `{s}`: expected NEAR,FAR in mm"))?;
+    let num = |t: &str| {
+        t.trim()
+            .parse::<f64>()
+            .with_context(|| format!("{what} `{s}`: `{t}` is not a number"))
+    };
+    Ok(ris_core::single_shot::FusionRange::new(
+        num(near)?,
+        num(far)?,
+        what,
+    )?)
+}
+
 #[cfg(test)]
 mod tests {
     #[test]

@@ -5,7 +5,9 @@ use std::path::Path;
 use std::sync::Mutex;
 
 use anyhow::{Context, Result};
-use ris_core::sim::{simulate, simulate_session, Scene, SimOutput};
+use ris_core::image::{GrayImage, Pixels};
+use ris_core::pattern::{Pattern, ProjectionMask};
+use ris_core::sim::{simulate, simulate_session, Scene, SimOutput, Simulator};
 
 use crate::progress;
 
@@ -66,6 +68,36 @@ pub fn run(scene: &Path, out: &Path) -> Result<Simulated> {
         o.truth.display()
     );
     Ok(Simulated::Scene(o))
+}
+
+/// Render the camera's view of `picture` projected on `scene` to `<out>/shown.png`.
+pub fn show(scene: &Path, picture: &Path, out: &Path) -> Result<()> {
+    let s = Scene::load(scene).with_context(|| format!("reading scene {}", scene.display()))?;
+    let img = GrayImage::load(picture).with_context(|| format!("reading {}", picture.display()))?;
+    let (pw, ph) = (s.projector.width, s.projector.height);
+    if (img.width, img.height) != (pw, ph) {
+        anyhow::bail!(
+            "{}: the picture is {}x{}, the scene's projector {pw}x{ph}",
+            picture.display(),
+            img.width,
+            img.height
+        );
+    }
+    let Pixels::U8(pixels) = &img.pixels else {
+        anyhow::bail!(
+            "{}: a projector picture is 8-bit grey; this one is 16-bit",
+            picture.display()
+        );
+    };
+    let sim = Simulator::new(s);
+    let mask = ProjectionMask::picture(pw, ph, pixels);
+    let frame = sim.frame_with(&sim.layout(), Pattern::White, Some(&mask), 1.0, 1);
+    let path = out.join("shown.png");
+    frame
+        .save_png(&path)
+        .with_context(|| format!("writing {}", path.display()))?;
+    println!("camera view of {}: {}", picture.display(), path.display());
+    Ok(())
 }
 
 /// Frames in one full capture of the scene's projector.

@@ -10,12 +10,19 @@ use ris_core::cloud::PointCloud;
 use ris_core::decode::{decode, DecodeParams};
 use ris_core::image::GrayImage;
 use ris_core::sensor::{ModelChoice, Reconstructor, Sensor};
-use ris_core::single_shot::{self, DetectParams, ReferencePrediction, XPointPattern};
+use ris_core::single_shot::{self, DetectParams, FusionRange, ReferencePrediction, XPointPattern};
 
 /// Decode `image` (the X-point pattern of `pattern` seen by `sensor`'s camera) and write the
 /// cloud to `out`; returns it. The sensor's Gray-code reference recording predicts where each
-/// X-point lies in the projector, which picks the code's repeat.
-pub fn run(sensor: &Path, pattern: &Path, image: &Path, out: &Path) -> Result<PointCloud> {
+/// X-point lies in the projector, which picks the code's repeat. `fused` also writes the
+/// fusion picture there, coloured over the given range (or one covering the points).
+pub fn run(
+    sensor: &Path,
+    pattern: &Path,
+    image: &Path,
+    out: &Path,
+    fused: Option<(&Path, Option<FusionRange>)>,
+) -> Result<PointCloud> {
     let s = Sensor::load(sensor)
         .with_context(|| format!("reading sensor file {}", sensor.display()))?;
     let pattern = XPointPattern::load(pattern)
@@ -80,6 +87,27 @@ pub fn run(sensor: &Path, pattern: &Path, image: &Path, out: &Path) -> Result<Po
     cloud
         .write_ply(out)
         .with_context(|| format!("writing {}", out.display()))?;
+    if let Some((path, range)) = fused {
+        let c = rec.camera().center();
+        let eye = [c.x, c.y, c.z];
+        let range = match range.or_else(|| FusionRange::covering(&cloud, eye)) {
+            Some(r) => r,
+            None => FusionRange::new(0.0, 1000.0, "--range")?,
+        };
+        let picture = single_shot::fuse(&img, &cloud, eye, range, None)
+            .with_context(|| format!("fusing {}", image.display()))?;
+        picture
+            .save(path)
+            .with_context(|| format!("writing {}", path.display()))?;
+        println!(
+            "fusion picture {}: {:.0}-{:.0} mm red to blue, {} pixels coloured (radius {:.1} px)",
+            path.display(),
+            range.near,
+            range.far,
+            picture.coloured,
+            picture.radius
+        );
+    }
     println!(
         "{} points from {} X-points ({} by their codeword, {} from a neighbour; {} codewords read, {} matched); prepare {:.0} ms, decode + reconstruct {:.0} ms; wrote {}",
         cloud.len(),

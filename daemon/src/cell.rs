@@ -37,6 +37,9 @@ pub struct PairStatus {
     /// Driver state.
     #[serde(flatten)]
     pub driver: DriverState,
+    /// Why this pair cannot scan single-shot (absent when it can).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub single_shot: Option<String>,
 }
 
 /// A prepared cell.
@@ -117,6 +120,7 @@ impl Cell {
                     camera,
                     projector,
                     driver: p.state.clone(),
+                    single_shot: p.single_shot.as_ref().err().cloned(),
                 }
             })
             .collect()

@@ -249,6 +249,47 @@ fn ros_token(s: &str) -> bool {
         && s.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
 }
 
+/// `[single_shot]`: the X-point pattern every pair projects for single-shot scans and
+/// streams, and how streams are shown.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SingleShotSection {
+    /// Grid steps of the pattern, projector pixels (default 14 × 14).
+    #[serde(default = "xpoint_step")]
+    pub step: [u32; 2],
+    /// Seed of the pattern's code.
+    #[serde(default)]
+    pub seed: u64,
+    /// Distances drawn red and blue in the fusion pictures, mm (default: each frame's own
+    /// 2nd to 98th percentile).
+    #[serde(default)]
+    pub range_mm: Option<[f64; 2]>,
+    /// Frames per second a stream asks of each pair unless its request says otherwise.
+    #[serde(default = "stream_rate")]
+    pub rate_hz: f64,
+}
+
+impl Default for SingleShotSection {
+    fn default() -> Self {
+        SingleShotSection {
+            step: xpoint_step(),
+            seed: 0,
+            range_mm: None,
+            rate_hz: stream_rate(),
+        }
+    }
+}
+
+/// Fastest stream rate a request or the config may ask, frames per second.
+pub const MAX_RATE_HZ: f64 = 1000.0;
+
+fn xpoint_step() -> [u32; 2] {
+    [14, 14]
+}
+fn stream_rate() -> f64 {
+    10.0
+}
+
 /// A cell configuration file.
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -273,6 +314,9 @@ pub struct CellFile {
     /// ROS 2 publication.
     #[serde(default)]
     pub ros2: Ros2Section,
+    /// Single-shot scans and streams.
+    #[serde(default)]
+    pub single_shot: SingleShotSection,
 }
 
 fn peer() -> String {
@@ -389,6 +433,8 @@ pub struct CellConfig {
     pub parts: Vec<PartConfig>,
     /// ROS 2 publication (validated: names are ROS 2 names when enabled).
     pub ros2: Ros2Section,
+    /// Single-shot scans and streams (validated).
+    pub single_shot: SingleShotSection,
 }
 
 /// Most scans that may wait in the queue.
@@ -762,6 +808,41 @@ impl CellConfig {
         }
         let mut storage = file.storage.clone();
         storage.data_dir = resolve(&storage.data_dir);
+        let single_shot = file.single_shot.clone();
+        if single_shot
+            .step
+            .iter()
+            .any(|&d| !(ris_core::single_shot::MIN_STEP..=512).contains(&d))
+        {
+            return Err(field(
+                "single_shot.step",
+                format!(
+                    "{:?}: each step must be {} … 512 projector pixels",
+                    single_shot.step,
+                    ris_core::single_shot::MIN_STEP
+                ),
+            ));
+        }
+        if let Some([near, far]) = single_shot.range_mm {
+            if !(near.is_finite() && far.is_finite() && near >= 0.0 && near < far) {
+                return Err(field(
+                    "single_shot.range_mm",
+                    format!("[{near}, {far}]: need 0 <= near < far (mm)"),
+                ));
+            }
+        }
+        if !(single_shot.rate_hz.is_finite()
+            && single_shot.rate_hz > 0.0
+            && single_shot.rate_hz <= MAX_RATE_HZ)
+        {
+            return Err(field(
+                "single_shot.rate_hz",
+                format!(
+                    "{} must be a positive rate up to {MAX_RATE_HZ}",
+                    single_shot.rate_hz
+                ),
+            ));
+        }
         let ros2 = file.ros2.clone();
         if ros2.domain_id > 232 {
             return Err(field(
@@ -836,6 +917,7 @@ impl CellConfig {
             sensors,
             parts,
             ros2,
+            single_shot,
         })
     }
 

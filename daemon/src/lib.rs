@@ -15,4 +15,6 @@ pub mod protocol;
 pub mod ros2;
 pub mod scan;
 pub mod service;
+pub mod single_shot;
 pub mod store;
+pub mod stream;

@@ -16,7 +16,8 @@ use ris_drivers::sequence::SequenceParams;
 use ris_drivers::{Camera, CameraSettings, ErrorKind, Projector, ProjectorSettings};
 use serde::Serialize;
 
-use crate::config::{Backend, CellConfig, SensorConfig};
+use crate::config::{Backend, CellConfig, SensorConfig, SingleShotSection};
+use crate::single_shot::PairSingleShot;
 
 /// The state of a pair's drivers, as health reports it.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize)]
@@ -54,6 +55,8 @@ pub struct Pair {
     pub(crate) exposure_us: f64,
     /// The drivers' state.
     pub state: DriverState,
+    /// Single-shot scans and streams: the pattern and its decoding, or why this pair cannot.
+    pub(crate) single_shot: std::result::Result<Arc<PairSingleShot>, String>,
 }
 
 impl Pair {
@@ -175,7 +178,7 @@ fn model(s: &SensorConfig) -> Result<Model> {
 
 /// Open pair `s` through its backend: model first (a bad sensor file fails before any device
 /// is touched), then the projector, then the camera. `seed` varies simulated noise.
-pub fn open(s: &SensorConfig, seed: u64) -> Result<Pair> {
+pub fn open(s: &SensorConfig, single: &SingleShotSection, seed: u64) -> Result<Pair> {
     let t = Instant::now();
     let m = model(s)?;
     let (camera, projector, faults, backend): (
@@ -249,6 +252,19 @@ pub fn open(s: &SensorConfig, seed: u64) -> Result<Pair> {
         seconds = t.elapsed().as_secs_f64(),
         "pair ready"
     );
+    let reference = m.reference.map(Arc::new);
+    let single_shot = match &reference {
+        Some(r) => PairSingleShot::new(&s.name, (m.layout.width, m.layout.height), single, r.clone())
+            .map(Arc::new)
+            .map_err(|e| format!("{e:#}")),
+        None => Err(format!(
+            "sensor {}: single-shot decoding needs the pair's Gray-code reference recording; its sensor file has no [reference]",
+            s.name
+        )),
+    };
+    if let Err(why) = &single_shot {
+        tracing::info!(sensor = %s.name, %why, "no single-shot scans for this pair");
+    }
     Ok(Pair {
         name: s.name.clone(),
         group: s.exposure_group,
@@ -259,7 +275,7 @@ pub fn open(s: &SensorConfig, seed: u64) -> Result<Pair> {
         layout: m.layout,
         reconstructor: Arc::new(m.reconstructor),
         to_common: m.to_common,
-        reference: m.reference.map(Arc::new),
+        reference,
         sequence: SequenceParams {
             trigger: s.trigger.clone(),
             settle: s.settle,
@@ -268,10 +284,15 @@ pub fn open(s: &SensorConfig, seed: u64) -> Result<Pair> {
         },
         exposure_us: s.exposure_us,
         state: DriverState::Connected,
+        single_shot,
     })
 }
 
 /// Open every pair of `config`, in file order.
 pub fn open_all(config: &CellConfig, seed: u64) -> Result<Vec<Pair>> {
-    config.sensors.iter().map(|s| open(s, seed)).collect()
+    config
+        .sensors
+        .iter()
+        .map(|s| open(s, &config.single_shot, seed))
+        .collect()
 }

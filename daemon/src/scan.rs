@@ -17,6 +17,7 @@ use ris_core::inspect::{
     inspect, load_datums, write_deviation_ply, write_deviation_png, Datum, InspectParams, MapTitle,
 };
 use ris_core::mesh::{SignedDistance, TriangleMesh};
+use ris_core::pattern::Pattern;
 use ris_core::sensor::Reconstructor;
 use ris_drivers::adaptive::{adaptive_scan, AdaptiveParams};
 use ris_drivers::sequence::acquire;
@@ -25,6 +26,7 @@ use serde::Serialize;
 
 use crate::config::PartConfig;
 pub use crate::pair::Pair;
+use crate::single_shot::PairSingleShot;
 
 /// Radius (mm) within which points of different sensors are duplicates in the merge.
 const MERGE_RADIUS: f64 = 0.5;
@@ -110,7 +112,7 @@ pub struct PhaseTiming {
 
 /// How a scan acquires.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
+#[serde(rename_all = "kebab-case")]
 pub enum ScanMode {
     /// The Gray-code sequence with inverses, unmasked.
     #[default]
@@ -118,6 +120,8 @@ pub enum ScanMode {
     /// The adaptive projection-mask loop (dark, black and shiny surfaces), then the Gray
     /// sequence under the final mask.
     Adaptive,
+    /// One frame of the X-point pattern per pair (moving parts; sparser points).
+    SingleShot,
 }
 
 impl ScanMode {
@@ -126,6 +130,7 @@ impl ScanMode {
         match text {
             "gray" => Some(ScanMode::Gray),
             "adaptive" => Some(ScanMode::Adaptive),
+            "single-shot" => Some(ScanMode::SingleShot),
             _ => None,
         }
     }
@@ -328,9 +333,22 @@ fn scan_into(
     // Captures go to the compute worker through a bounded channel; it decodes, reconstructs,
     // writes and merges each sensor while the next group acquires.
     let (tx, rx) = mpsc::sync_channel::<(usize, CaptureSet)>(pairs.len().max(1));
-    let recs: Vec<(String, Arc<Reconstructor>, nalgebra::Matrix4<f64>)> = pairs
+    type PairCompute = (
+        String,
+        Arc<Reconstructor>,
+        nalgebra::Matrix4<f64>,
+        Option<Arc<PairSingleShot>>,
+    );
+    let recs: Vec<PairCompute> = pairs
         .iter()
-        .map(|p| (p.name.clone(), p.reconstructor.clone(), p.to_common))
+        .map(|p| {
+            (
+                p.name.clone(),
+                p.reconstructor.clone(),
+                p.to_common,
+                p.single_shot.as_ref().ok().cloned(),
+            )
+        })
         .collect();
     let mut timings: Vec<SensorTiming> = pairs
         .iter()
@@ -368,18 +386,33 @@ fn scan_into(
             let mut merger = Merger::new(MERGE_RADIUS);
             let mut done = Vec::new();
             for (i, capture) in rx {
-                let (name, rec, to_common) = &recs[i];
+                let (name, rec, to_common, single) = &recs[i];
                 state(&ScanState::Reconstructing {
                     sensor: name.clone(),
                 });
                 let c0 = secs();
-                let decoded = decode(&capture, &DecodeParams::default())
-                    .with_context(|| format!("sensor {name}: decoding"))?;
+                let (cloud, c1) = if options.mode == ScanMode::SingleShot {
+                    let single = single.as_ref().ok_or_else(|| {
+                        anyhow!("sensor {name}: no single-shot set-up")
+                    })?;
+                    let image = capture.frame(Pattern::White).ok_or_else(|| {
+                        anyhow!("sensor {name}: the single-shot frame is missing")
+                    })?;
+                    let f = single
+                        .cloud(image, rec)
+                        .with_context(|| format!("sensor {name}: single-shot decoding"))?;
+                    tracing::debug!(sensor = %name, detected = f.detected, stats = ?f.stats, "single-shot frame");
+                    (f.cloud, c0 + f.decode_s)
+                } else {
+                    let decoded = decode(&capture, &DecodeParams::default())
+                        .with_context(|| format!("sensor {name}: decoding"))?;
+                    let c1 = secs();
+                    let cloud = rec
+                        .reconstruct(&decoded)
+                        .with_context(|| format!("sensor {name}: reconstruction"))?;
+                    (cloud, c1)
+                };
                 drop(capture);
-                let c1 = secs();
-                let cloud = rec
-                    .reconstruct(&decoded)
-                    .with_context(|| format!("sensor {name}: reconstruction"))?;
                 let c2 = secs();
                 merger.add(&cloud, to_common);
                 let c3 = secs();
@@ -492,7 +525,14 @@ fn scan_into(
         }
     }
     let inspection = match options.part {
-        Some(part) => Some(inspect_part(part, &merged, dir, &secs, state)?),
+        Some(part) => Some(inspect_part(
+            part,
+            &merged,
+            dir,
+            &secs,
+            state,
+            options.mode,
+        )?),
         None => None,
     };
     let report = ScanReport {
@@ -578,6 +618,32 @@ fn acquire_pair(
                 frame_wait_s: acq.report.frame_wait_s,
             })
         }
+        ScanMode::SingleShot => {
+            let single = p.single_shot.clone().map_err(|why| anyhow!(why))?;
+            let slides = [single.slide.clone()];
+            let acq = acquire(
+                &mut *p.camera,
+                &mut *p.projector,
+                &p.layout,
+                &slides,
+                &p.sequence,
+                &mut |pr| {
+                    state(&ScanState::Acquiring {
+                        sensor: name.clone(),
+                        phase: None,
+                        frame: pr.done,
+                        frames: pr.total,
+                    })
+                },
+            )?;
+            Ok(Recorded {
+                capture: acq.capture,
+                frames: acq.report.shows,
+                phases: Vec::new(),
+                present_s: acq.report.present_s,
+                frame_wait_s: acq.report.frame_wait_s,
+            })
+        }
         ScanMode::Adaptive => {
             let reference = p.reference.clone().ok_or_else(|| {
                 anyhow!(
@@ -635,6 +701,7 @@ fn inspect_part(
     dir: &Path,
     secs: &dyn Fn() -> f64,
     state: &(dyn Fn(&ScanState) + Sync),
+    mode: ScanMode,
 ) -> Result<InspectionSummary> {
     state(&ScanState::Inspecting {
         part: part.id.clone(),
@@ -665,6 +732,12 @@ fn inspect_part(
     if outside > 0 {
         r.report.warnings.push(format!(
             "{outside} of {} merged points lie outside their sensor's calibrated volume and were not inspected",
+            merged.len()
+        ));
+    }
+    if mode == ScanMode::SingleShot {
+        r.report.warnings.push(format!(
+            "a single-shot scan: {} sparse points, each from one X-point of one frame, noisier than a Gray-code scan; weigh the verdict against that before acting on it",
             merged.len()
         ));
     }

@@ -21,6 +21,7 @@ use crate::notify;
 use crate::protocol::{echo, health_key, scan_key, state_key, ScanRequest};
 use crate::scan::{self, ScanMode, ScanState};
 use crate::store::{self, DataDirLock};
+use crate::stream::{self, StreamControl, StreamRequest};
 
 /// What `ris/<cell>/health` answers.
 #[derive(Clone, Debug, Serialize)]
@@ -75,12 +76,7 @@ impl Heartbeat {
 /// cell's parts); the error is the reply's reason.
 pub fn validate(req: &ScanRequest, config: &CellConfig) -> Result<Option<usize>, String> {
     match req.mode.as_deref() {
-        None | Some("gray" | "adaptive") => {}
-        Some(m @ "single-shot") => {
-            return Err(format!(
-                "mode {m:?} is not available in this risd build; use \"gray\" or \"adaptive\""
-            ))
-        }
+        None | Some("gray" | "adaptive" | "single-shot") => {}
         Some(m) => {
             return Err(format!(
                 "unknown mode {} (gray, adaptive, single-shot)",
@@ -108,9 +104,13 @@ pub fn validate(req: &ScanRequest, config: &CellConfig) -> Result<Option<usize>,
         ),
         None => None,
     };
+    // A single-shot cloud is sparse and noisier than a Gray-code one: it is inspected only
+    // when the request asks for it, never by default.
+    let single = req.mode.as_deref() == Some("single-shot");
     match (req.inspect, named, config.parts.len()) {
         (Some(false), Some(_), _) => Err("`part` is named but `inspect` is false".into()),
         (Some(false), None, _) => Ok(None),
+        (None, _, _) if single => Ok(None),
         (_, Some(i), _) => Ok(Some(i)),
         (_, None, 1) => Ok(Some(0)),
         (Some(true), None, 0) => Err(format!("cell {:?} defines no part to inspect", config.name)),
@@ -139,7 +139,7 @@ pub fn zenoh_config(mode: &str, listen: &[String], connect: &[String]) -> Result
 }
 
 /// Zenoh authentication and access control for `cell` (SPEC §12 keys): operators may query
-/// `scan`; operators and readers may query health and stored scans, subscribe to the cell's
+/// `scan` and `stream`; users may ask streamed points; operators and readers may query health and stored scans, subscribe to the cell's
 /// publications and see its liveliness; everything else, publishing under `ris/<cell>/**`
 /// included, is denied. `ros2` adds the cell's ROS 2 topics and liveliness tokens (see
 /// [`crate::ros2::acl_keys`]) to what users may follow.
@@ -171,10 +171,10 @@ pub fn apply_access(
         "default_permission": "deny",
         "rules": [
             {"id": "scan", "permission": "allow", "flows": ["ingress", "egress"],
-             "messages": ["query", "reply"], "key_exprs": [scan_key(cell)]},
+             "messages": ["query", "reply"], "key_exprs": [scan_key(cell), stream::stream_key(cell)]},
             {"id": "read", "permission": "allow", "flows": ["ingress", "egress"],
              "messages": ["query", "reply"],
-             "key_exprs": [health_key(cell), format!("ris/{cell}/scans/**")]},
+             "key_exprs": [health_key(cell), format!("ris/{cell}/scans/**"), stream::sensor_key(cell, "*", "point")]},
             {"id": "follow", "permission": "allow", "flows": ["ingress"],
              "messages": ["declare_subscriber"], "key_exprs": follow},
             {"id": "follow-out", "permission": "allow", "flows": ["egress"],
@@ -302,6 +302,15 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
         .declare_queryable(format!("ris/{cell}/scans/**"))
         .await
         .map_err(|e| anyhow!("declaring ris/{cell}/scans/**: {e}"))?;
+    let streams = Arc::new(StreamControl::default());
+    let stream_q = session
+        .declare_queryable(stream::stream_key(&cell))
+        .await
+        .map_err(|e| anyhow!("declaring {}: {e}", stream::stream_key(&cell)))?;
+    let point_q = session
+        .declare_queryable(stream::sensor_key(&cell, "*", "point"))
+        .await
+        .map_err(|e| anyhow!("declaring the stream's point queries: {e}"))?;
 
     let heartbeat = Arc::new(Heartbeat::new());
     heartbeat.beat();
@@ -359,6 +368,7 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
                     config.storage.clone(),
                 );
                 let w_ros2 = ros2.clone();
+                let (w_streams, w_single) = (streams.clone(), config.single_shot.clone());
                 let (Some(rx), Some(gone)) = (rx.take(), worker_gone_tx.take()) else {
                     break Err(anyhow!("the scan worker was started twice"));
                 };
@@ -374,6 +384,8 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
                             data_dir: &w_data_dir,
                             storage: &storage,
                             ros2: w_ros2.as_deref(),
+                            streams: &w_streams,
+                            single_shot: &w_single,
                         };
                         worker_loop(rx, cell_ready, &ctx);
                         drop(gone);
@@ -409,9 +421,25 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
                 let (c, d) = (cell.clone(), data_dir.clone());
                 tokio::spawn(async move { handle_store(&q, &c, &d).await });
             }
+            q = stream_q.recv_async() => {
+                let Ok(q) = q else { break Ok(()) };
+                handle_stream(&q, &config, prepared && token.is_some(), &status, &streams).await;
+            }
+            q = point_q.recv_async() => {
+                let Ok(q) = q else { break Ok(()) };
+                handle_point(&q, &streams).await;
+            }
             q = health.recv_async() => {
                 let Ok(q) = q else { break Ok(()) };
-                let json = status.lock().map(|s| serde_json::to_string(&*s).unwrap_or_default()).unwrap_or_default();
+                let json = status
+                    .lock()
+                    .ok()
+                    .and_then(|s| serde_json::to_value(&*s).ok())
+                    .map(|mut v| {
+                        v["stream"] = serde_json::to_value(streams.status()).unwrap_or_default();
+                        v.to_string()
+                    })
+                    .unwrap_or_default();
                 if let Err(e) = q.reply(health_key(&cell), json).await {
                     tracing::warn!(error = %e, "health reply failed");
                 }
@@ -422,6 +450,9 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
     tracing::info!("stopping: no new scans; ending the running one");
     set_state(&status, "stopping");
     drop(scan_q);
+    drop(stream_q);
+    drop(point_q);
+    streams.stop();
     stopping.store(true, Ordering::SeqCst);
     drop(tx);
     if let Some(worker) = worker {
@@ -528,6 +559,127 @@ async fn handle_scan(
     }
 }
 
+/// `ris/<cell>/stream`: start, stop or report the single-shot stream.
+async fn handle_stream(
+    q: &Query,
+    config: &CellConfig,
+    ready: bool,
+    status: &Mutex<Status>,
+    streams: &StreamControl,
+) {
+    let key = stream::stream_key(&config.name);
+    if q.key_expr().as_str() != key {
+        return;
+    }
+    let body = q
+        .payload()
+        .map(|p| p.to_bytes().into_owned())
+        .unwrap_or_default();
+    let names: Vec<String> = config.sensors.iter().map(|s| s.name.clone()).collect();
+    let outcome = StreamRequest::parse(&body).and_then(|r| match r.action.as_deref() {
+        None | Some("status") => Ok(serde_json::to_value(streams.status()).unwrap_or_default()),
+        Some("stop") => {
+            let st = streams.stop();
+            tracing::info!("stream stopped by request");
+            Ok(serde_json::to_value(st).unwrap_or_default())
+        }
+        Some("start") => {
+            if !ready {
+                return Err("the cell is starting: its pairs are being prepared; try again when ris/<cell>/health is alive".into());
+            }
+            let spec = r.spec(&names, config.single_shot.rate_hz)?;
+            let pairs = status.lock().map(|s| s.pairs.clone()).unwrap_or_default();
+            for p in pairs.iter().filter(|p| spec.sensors.contains(&p.sensor)) {
+                if let Some(why) = &p.single_shot {
+                    return Err(why.clone());
+                }
+            }
+            tracing::info!(sensors = ?spec.sensors, rate_hz = spec.rate_hz, "stream requested");
+            let keys: serde_json::Map<String, serde_json::Value> = spec
+                .sensors
+                .iter()
+                .map(|s| {
+                    (
+                        s.clone(),
+                        serde_json::json!({
+                            "cloud": stream::sensor_key(&config.name, s, "cloud"),
+                            "fused": stream::sensor_key(&config.name, s, "fused"),
+                            "point": stream::sensor_key(&config.name, s, "point"),
+                        }),
+                    )
+                })
+                .collect();
+            let reply = serde_json::json!({
+                "state": "streaming",
+                "sensors": spec.sensors,
+                "rate_hz": spec.rate_hz,
+                "keys": keys,
+            });
+            streams.start(spec);
+            Ok(reply)
+        }
+        Some(other) => Err(format!(
+            "unknown action {} (start, stop, status)",
+            echo(other)
+        )),
+    });
+    match outcome {
+        Ok(v) => {
+            if let Err(e) = q.reply(&key, v.to_string()).await {
+                tracing::warn!(error = %e, "stream reply failed");
+            }
+        }
+        Err(reason) => reply_error(q, &key, &reason).await,
+    }
+}
+
+/// `ris/<cell>/stream/<sensor>/point?u=..&v=..`: the streamed point nearest a camera pixel.
+async fn handle_point(q: &Query, streams: &StreamControl) {
+    let key = q.key_expr().clone();
+    let sensor = key
+        .as_str()
+        .split('/')
+        .nth(3)
+        .unwrap_or_default()
+        .to_string();
+    if sensor.contains('*') {
+        return;
+    }
+    // `u=..&v=..` as well as Zenoh's own `u=..;v=..`.
+    let text = q.parameters().as_str().to_string();
+    let params: Vec<(&str, &str)> = text
+        .split(['&', ';'])
+        .filter_map(|kv| kv.split_once('='))
+        .collect();
+    let num = |name: &str| {
+        params
+            .iter()
+            .find(|(k, _)| *k == name)
+            .map(|(_, v)| *v)
+            .ok_or_else(|| format!("`{name}` is missing: ask ...point?u=<column>&v=<row>"))
+            .and_then(|v| {
+                v.parse::<f64>()
+                    .map_err(|_| format!("`{name}` = {} is not a number", echo(v)))
+            })
+    };
+    let answer = num("u")
+        .and_then(|u| num("v").map(|v| (u, v)))
+        .and_then(|(u, v)| stream::point_query(streams, &sensor, u, v));
+    match answer {
+        Ok(json) => {
+            if let Err(e) = q.reply(key, json).await {
+                tracing::warn!(error = %e, "point reply failed");
+            }
+        }
+        Err(reason) => {
+            let reply = serde_json::json!({ "error": reason }).to_string();
+            if let Err(e) = q.reply_err(reply).await {
+                tracing::warn!(error = %e, "point error reply failed");
+            }
+        }
+    }
+}
+
 fn publish(session: &Session, cell: &str, scan_id: &str, state: &ScanState) {
     let key = state_key(cell, scan_id);
     let json = serde_json::to_string(state).unwrap_or_default();
@@ -546,6 +698,8 @@ struct WorkerContext<'a> {
     data_dir: &'a Path,
     storage: &'a crate::config::StorageSection,
     ros2: Option<&'a crate::ros2::Bridge>,
+    streams: &'a StreamControl,
+    single_shot: &'a crate::config::SingleShotSection,
 }
 
 fn worker_loop(rx: mpsc::Receiver<Job>, mut cell: Cell, ctx: &WorkerContext) {
@@ -557,6 +711,40 @@ fn worker_loop(rx: mpsc::Receiver<Job>, mut cell: Cell, ctx: &WorkerContext) {
     report_pairs(&cell);
     loop {
         ctx.heartbeat.beat();
+        let wanted = ctx.streams.wanted();
+        if let (Some((spec, generation)), false) = (wanted, ctx.stopping.load(Ordering::SeqCst)) {
+            let stopping = || ctx.stopping.load(Ordering::SeqCst);
+            let beat = || ctx.heartbeat.beat();
+            let out = stream::Publish {
+                session: ctx.session,
+                cell: ctx.cell,
+                config: ctx.single_shot,
+                stopping: &stopping,
+                beat: &beat,
+            };
+            // A panic while streaming ends the stream, not the worker.
+            let ended = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                stream::run(&mut cell, &spec, generation, ctx.streams, &out, &rx)
+            }));
+            report_pairs(&cell);
+            match ended {
+                Ok(stream::StreamEnd::Stopped) => continue,
+                Ok(stream::StreamEnd::Closed) => break,
+                Ok(stream::StreamEnd::Job(job)) => {
+                    run_one(job, &mut cell, ctx, &report_pairs);
+                    continue;
+                }
+                Err(panic) => {
+                    let reason = format!("internal error: {}", scan::panic_message(&*panic));
+                    tracing::error!(%reason, "stream panicked");
+                    ctx.streams.stop();
+                    if let Ok(mut s) = ctx.status.lock() {
+                        s.last_error = Some(format!("stream: {reason}"));
+                    }
+                    continue;
+                }
+            }
+        }
         let job = match rx.recv_timeout(Duration::from_secs(1)) {
             Ok(job) => job,
             Err(mpsc::RecvTimeoutError::Timeout) => {
@@ -573,39 +761,42 @@ fn worker_loop(rx: mpsc::Receiver<Job>, mut cell: Cell, ctx: &WorkerContext) {
             }
             Err(mpsc::RecvTimeoutError::Disconnected) => break,
         };
+        run_one(job, &mut cell, ctx, &report_pairs);
+    }
+}
+
+/// Run one scan job on the worker: a panic fails that job only.
+fn run_one(job: Job, cell: &mut Cell, ctx: &WorkerContext, report_pairs: &dyn Fn(&Cell)) {
+    if let Ok(mut s) = ctx.status.lock() {
+        s.queue = s.queue.saturating_sub(1);
+        s.state = "scanning".into();
+    }
+    let id = job.scan_id.clone();
+    // A panic anywhere in a job fails that job; the worker goes on with the next.
+    let ran = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run_job(job, cell, ctx)));
+    report_pairs(cell);
+    if let Err(panic) = ran {
+        let reason = format!("internal error: {}", scan::panic_message(&*panic));
+        tracing::error!(scan = %id, %reason, "scan panicked");
+        publish(
+            ctx.session,
+            ctx.cell,
+            &id,
+            &ScanState::Failed {
+                reason: reason.clone(),
+            },
+        );
         if let Ok(mut s) = ctx.status.lock() {
-            s.queue = s.queue.saturating_sub(1);
-            s.state = "scanning".into();
+            s.last_error = Some(format!("{id}: {reason}"));
         }
-        let id = job.scan_id.clone();
-        // A panic anywhere in a job fails that job; the worker goes on with the next.
-        let ran = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            run_job(job, &mut cell, ctx)
-        }));
-        report_pairs(&cell);
-        if let Err(panic) = ran {
-            let reason = format!("internal error: {}", scan::panic_message(&*panic));
-            tracing::error!(scan = %id, %reason, "scan panicked");
-            publish(
-                ctx.session,
-                ctx.cell,
-                &id,
-                &ScanState::Failed {
-                    reason: reason.clone(),
-                },
-            );
-            if let Ok(mut s) = ctx.status.lock() {
-                s.last_error = Some(format!("{id}: {reason}"));
-            }
-            let partial = ctx.data_dir.join("scans").join(format!("{id}.partial"));
-            if partial.exists() {
-                let _ = std::fs::remove_dir_all(&partial);
-            }
+        let partial = ctx.data_dir.join("scans").join(format!("{id}.partial"));
+        if partial.exists() {
+            let _ = std::fs::remove_dir_all(&partial);
         }
-        if let Ok(mut s) = ctx.status.lock() {
-            if s.state == "scanning" {
-                s.state = "ready".into();
-            }
+    }
+    if let Ok(mut s) = ctx.status.lock() {
+        if s.state == "scanning" {
+            s.state = "ready".into();
         }
     }
 }
@@ -788,5 +979,13 @@ mod tests {
         assert!(err(r#"{"part": "roof"}"#, &two).contains("\"roof\""));
         assert!(err(r#"{"part": "door", "inspect": false}"#, &two).contains("inspect"));
         assert!(err(r#"{"mode": "fast"}"#, &one).contains("fast"));
+        assert_eq!(validate(&req(r#"{"mode": "single-shot"}"#), &one), Ok(None));
+        assert_eq!(
+            validate(
+                &req(r#"{"mode": "single-shot", "inspect": true, "part": "hood"}"#),
+                &two
+            ),
+            Ok(Some(1))
+        );
     }
 }

@@ -392,6 +392,41 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Stream single-shot clouds from a running risd: start the stream, show frames per
+    /// second, points and latency per sensor live, stop it, and keep each sensor's last cloud
+    /// (SENSOR.ply, cell frame) and fusion picture (SENSOR.png) in OUT.
+    Stream {
+        /// Zenoh endpoint of the daemon.
+        #[arg(long, default_value = "tcp/127.0.0.1:7447")]
+        connect: Vec<String>,
+        /// Cell name.
+        #[arg(long, default_value = "mock")]
+        cell: String,
+        /// Zenoh user, for a cell with [zenoh.access].
+        #[arg(long, requires = "password_file")]
+        user: Option<String>,
+        /// File whose first line is the user's password.
+        #[arg(long, requires = "user")]
+        password_file: Option<PathBuf>,
+        /// Sensors to stream (repeat; default all).
+        #[arg(long = "sensor")]
+        sensors: Vec<String>,
+        /// Frames per second asked of each pair (default: the cell's [single_shot] rate_hz).
+        #[arg(long)]
+        rate: Option<f64>,
+        /// Stop once every sensor delivered this many clouds.
+        #[arg(long)]
+        frames: Option<u64>,
+        /// Stop after this many seconds.
+        #[arg(long)]
+        seconds: Option<f64>,
+        /// Leave the stream running in risd when done.
+        #[arg(long)]
+        keep_running: bool,
+        /// Write each sensor's last cloud and fusion picture here.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// Inspect a cloud against its CAD model: deviation map, report and verdict (exit status 3
     /// when the part fails, 4 when too little of it or of a datum was measured for a verdict).
     Inspect {
@@ -745,6 +780,30 @@ fn main() -> Result<()> {
             if let Some(picture) = show {
                 commands::simulate::show(&scene, &picture, &out)?;
             }
+        }
+        Command::Stream {
+            connect,
+            cell,
+            user,
+            password_file,
+            sensors,
+            rate,
+            frames,
+            seconds,
+            keep_running,
+            out,
+        } => {
+            commands::stream::run(&commands::stream::StreamArgs {
+                connect,
+                cell,
+                sensors,
+                rate,
+                frames,
+                seconds,
+                keep_running,
+                out,
+                credentials: user.zip(password_file),
+            })?;
         }
         Command::Scan {
             connect,

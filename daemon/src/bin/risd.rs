@@ -30,8 +30,9 @@ struct Args {
     /// Scan the cell once, write clouds under the data directory, print where, and exit.
     #[arg(long)]
     once: bool,
-    /// With --once: `gray` (default) or `adaptive` (the projection-mask loop per pair).
-    #[arg(long, default_value = "gray", value_parser = ["gray", "adaptive"])]
+    /// With --once: `gray` (default), `adaptive` (the projection-mask loop per pair) or
+    /// `single-shot` (one frame of the X-point pattern per pair).
+    #[arg(long, default_value = "gray", value_parser = ["gray", "adaptive", "single-shot"])]
     mode: String,
     /// With --once: also keep every pair's capture set (replayable with `backend = "replay"`).
     #[arg(long)]
@@ -164,7 +165,8 @@ fn main() -> Result<()> {
     };
     let job = ScanJob {
         // The part is inspected when the cell defines exactly one (as a request without fields).
-        part: (config.parts.len() == 1).then_some(0),
+        // Single-shot clouds are not inspected unless asked (they are sparse and noisier).
+        part: (config.parts.len() == 1 && args.mode != "single-shot").then_some(0),
         mode: ScanMode::parse(&args.mode).unwrap_or_default(),
         ..ScanJob::default()
     };

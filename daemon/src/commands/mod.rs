@@ -16,6 +16,7 @@ pub mod register;
 pub mod scan;
 pub mod simulate;
 pub mod single_shot;
+pub mod stream;
 #[cfg(all(feature = "aravis", feature = "projector"))]
 pub mod virtual_cell;
 

@@ -1,0 +1,697 @@
+//! Single-shot streams (SPEC §12, `ris/<cell>/stream`): each selected pair projects its X-point
+//! pattern once and captures continuously; every frame becomes a cloud in the cell frame and a
+//! fusion picture, published on `ris/<cell>/stream/<sensor>/cloud` and `.../fused` with the
+//! frame's number and timestamp. Acquisition never waits for computation or for a slow
+//! consumer: a frame that arrives while the previous one of its sensor is still waiting to be
+//! computed replaces it (counted as dropped), and publications drop rather than block. The
+//! latest cloud of each sensor answers `ris/<cell>/stream/<sensor>/point?u=..&v=..`.
+
+use std::collections::BTreeMap;
+use std::sync::{Arc, Condvar, Mutex};
+use std::time::{Duration, Instant, SystemTime};
+
+use anyhow::{anyhow, Context, Result};
+use ris_core::cloud::PointCloud;
+use ris_core::image::GrayImage;
+use ris_core::pattern::Pattern;
+use ris_core::single_shot::{fuse, FusionRange};
+use ris_drivers::Slide;
+use serde::{Deserialize, Serialize};
+use zenoh::qos::CongestionControl;
+use zenoh::{Session, Wait};
+
+use crate::cell::Cell;
+use crate::config::{SingleShotSection, MAX_RATE_HZ};
+use crate::protocol::{echo, MAX_REQUEST};
+
+/// `ris/<cell>/stream`: start, stop or ask about the stream.
+pub fn stream_key(cell: &str) -> String {
+    format!("ris/{cell}/stream")
+}
+
+/// `ris/<cell>/stream/<sensor>/<what>` (`cloud`, `fused`, `point`).
+pub fn sensor_key(cell: &str, sensor: &str, what: &str) -> String {
+    format!("ris/{cell}/stream/{sensor}/{what}")
+}
+
+/// A stream request (a JSON object on the exact stream key).
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StreamRequest {
+    /// `start`, `stop` or `status` (default `status`).
+    #[serde(default)]
+    pub action: Option<String>,
+    /// Frames per second asked of each pair (default the cell's `[single_shot] rate_hz`).
+    #[serde(default)]
+    pub rate: Option<f64>,
+    /// Sensors to stream (default all).
+    #[serde(default)]
+    pub sensors: Option<Vec<String>>,
+}
+
+/// What a start asks for, validated.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct StreamSpec {
+    /// Sensors, in cell order.
+    pub sensors: Vec<String>,
+    /// Frames per second per pair at most.
+    pub rate_hz: f64,
+}
+
+impl StreamRequest {
+    /// Parse a request body: a JSON object of at most [`MAX_REQUEST`] bytes.
+    pub fn parse(body: &[u8]) -> Result<StreamRequest, String> {
+        if body.len() > MAX_REQUEST {
+            return Err(format!(
+                "the request has {} bytes; at most {MAX_REQUEST} are accepted",
+                body.len()
+            ));
+        }
+        if body.is_empty() {
+            return Ok(StreamRequest::default());
+        }
+        let value: serde_json::Value = serde_json::from_slice(body)
+            .map_err(|_| "malformed request: not JSON; send {\"action\": \"start\"}".to_string())?;
+        if !value.is_object() {
+            return Err(
+                "malformed request: the body must be a JSON object such as {\"action\": \"start\"}"
+                    .into(),
+            );
+        }
+        serde_json::from_value(value).map_err(|e| {
+            let text = e.to_string();
+            format!(
+                "malformed request: {}",
+                text.chars().take(200).collect::<String>()
+            )
+        })
+    }
+
+    /// The stream a start asks of `sensors` (the cell's, in order), at `default_rate` unless
+    /// the request names one.
+    pub fn spec(&self, sensors: &[String], default_rate: f64) -> Result<StreamSpec, String> {
+        let rate = self.rate.unwrap_or(default_rate);
+        if !(rate.is_finite() && rate > 0.0 && rate <= MAX_RATE_HZ) {
+            return Err(format!(
+                "`rate` {rate} must be a positive number of frames per second up to {MAX_RATE_HZ}"
+            ));
+        }
+        let chosen = match &self.sensors {
+            None => sensors.to_vec(),
+            Some(list) if list.is_empty() => return Err("`sensors` is empty".into()),
+            Some(list) => {
+                if let Some(s) = list.iter().find(|s| !sensors.contains(s)) {
+                    return Err(format!("no sensor {} in the cell", echo(s)));
+                }
+                sensors
+                    .iter()
+                    .filter(|s| list.contains(s))
+                    .cloned()
+                    .collect()
+            }
+        };
+        Ok(StreamSpec {
+            sensors: chosen,
+            rate_hz: rate,
+        })
+    }
+}
+
+/// Counters of one sensor's stream.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct SensorCounts {
+    /// Frames captured.
+    pub frames: u64,
+    /// Frames replaced before they were computed.
+    pub dropped: u64,
+    /// Clouds published.
+    pub published: u64,
+    /// Points of the last cloud.
+    pub points: usize,
+    /// Milliseconds from the last published frame's arrival to its publication.
+    pub latency_ms: f64,
+}
+
+/// The stream as health and `status` report it.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct StreamStatus {
+    /// `stopped`, `streaming`, `paused` (a scan runs) or `failed`.
+    pub state: String,
+    /// The running (or last) stream.
+    pub spec: Option<StreamSpec>,
+    /// Per sensor.
+    pub sensors: BTreeMap<String, SensorCounts>,
+    /// Why the last stream ended on its own.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+}
+
+/// The latest computed frame of a sensor, for the pixel query.
+pub struct Latest {
+    /// Frame number within the stream (from 1).
+    pub frame: u64,
+    /// When the frame arrived, ns since the Unix epoch.
+    pub timestamp_ns: u64,
+    /// The cloud in the cell frame, organised on the camera's pixels.
+    pub cloud: PointCloud,
+}
+
+/// What the service and the scan worker share about streams.
+#[derive(Default)]
+pub struct StreamControl {
+    state: Mutex<ControlState>,
+    latest: Mutex<BTreeMap<String, Arc<Latest>>>,
+}
+
+#[derive(Default)]
+struct ControlState {
+    wanted: Option<StreamSpec>,
+    generation: u64,
+    status: StreamStatus,
+}
+
+impl StreamControl {
+    fn lock(&self) -> std::sync::MutexGuard<'_, ControlState> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Ask for `spec` to stream (replacing any running stream).
+    pub fn start(&self, spec: StreamSpec) {
+        let mut st = self.lock();
+        st.generation += 1;
+        st.status = StreamStatus {
+            state: "streaming".into(),
+            spec: Some(spec.clone()),
+            sensors: spec
+                .sensors
+                .iter()
+                .map(|s| (s.clone(), SensorCounts::default()))
+                .collect(),
+            error: None,
+        };
+        st.wanted = Some(spec);
+    }
+
+    /// Stop streaming; the status of the stream that ran.
+    pub fn stop(&self) -> StreamStatus {
+        let mut st = self.lock();
+        st.generation += 1;
+        st.wanted = None;
+        if st.status.state != "failed" {
+            st.status.state = "stopped".into();
+        }
+        st.status.clone()
+    }
+
+    /// The stream's status.
+    pub fn status(&self) -> StreamStatus {
+        self.lock().status.clone()
+    }
+
+    /// The stream wanted now and its generation.
+    pub fn wanted(&self) -> Option<(StreamSpec, u64)> {
+        let st = self.lock();
+        st.wanted.clone().map(|w| (w, st.generation))
+    }
+
+    fn current(&self, generation: u64) -> bool {
+        let st = self.lock();
+        st.generation == generation && st.wanted.is_some()
+    }
+
+    /// The stream of `generation` ended on its own with `error`.
+    fn failed(&self, generation: u64, error: String) {
+        let mut st = self.lock();
+        if st.generation == generation {
+            st.wanted = None;
+            st.status.state = "failed".into();
+            st.status.error = Some(error);
+        }
+    }
+
+    fn set_state(&self, generation: u64, state: &str) {
+        let mut st = self.lock();
+        if st.generation == generation && st.status.state != "failed" {
+            st.status.state = state.into();
+        }
+    }
+
+    fn count(&self, generation: u64, sensor: &str, f: impl FnOnce(&mut SensorCounts)) {
+        let mut st = self.lock();
+        if st.generation == generation {
+            if let Some(c) = st.status.sensors.get_mut(sensor) {
+                f(c);
+            }
+        }
+    }
+
+    /// The latest computed frame of `sensor`.
+    pub fn latest(&self, sensor: &str) -> Option<Arc<Latest>> {
+        self.latest
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(sensor)
+            .cloned()
+    }
+
+    fn set_latest(&self, sensor: &str, latest: Latest) {
+        self.latest
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .insert(sensor.to_string(), Arc::new(latest));
+    }
+}
+
+/// The answer to a pixel query: the point of the latest cloud of `sensor` whose camera pixel
+/// is nearest (u, v).
+pub fn point_query(
+    control: &StreamControl,
+    sensor: &str,
+    u: f64,
+    v: f64,
+) -> Result<String, String> {
+    if !(u.is_finite() && v.is_finite()) {
+        return Err("u and v must be numbers (camera pixels)".into());
+    }
+    let latest = control
+        .latest(sensor)
+        .ok_or_else(|| format!("no streamed frame of sensor {} yet", echo(sensor)))?;
+    let [w, h] = latest.cloud.image.unwrap_or([0, 0]);
+    if !(u >= -0.5 && v >= -0.5 && u < f64::from(w) - 0.5 && v < f64::from(h) - 0.5) {
+        return Err(format!(
+            "pixel ({u}, {v}) is outside the {w}x{h} camera image"
+        ));
+    }
+    let best = latest
+        .cloud
+        .pixels
+        .iter()
+        .enumerate()
+        .map(|(i, &p)| {
+            let (x, y) = (f64::from(p % w.max(1)), f64::from(p / w.max(1)));
+            (i, ((x - u).powi(2) + (y - v).powi(2)).sqrt(), x, y)
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .ok_or_else(|| format!("the latest frame of {} has no points", echo(sensor)))?;
+    let (i, d, x, y) = best;
+    let p = latest.cloud.points[i];
+    Ok(serde_json::json!({
+        "sensor": sensor,
+        "frame": latest.frame,
+        "timestamp_ns": latest.timestamp_ns,
+        "asked": [u, v],
+        "pixel": [x, y],
+        "pixel_distance": d,
+        "point_mm": [p[0], p[1], p[2]],
+        "frame_of_point": "cell",
+        "confidence": latest.cloud.confidence.get(i).copied().unwrap_or(1.0),
+    })
+    .to_string())
+}
+
+/// Why a stream run returned.
+pub enum StreamEnd<J> {
+    /// Stopped or replaced by a request, or risd is stopping.
+    Stopped,
+    /// A scan job arrived: run it, then stream again.
+    Job(J),
+    /// The queue of jobs closed.
+    Closed,
+}
+
+/// One slot per sensor holding its newest value: a put replaces a value not yet taken, and
+/// takes go round the sensors so none starves.
+struct Newest<T> {
+    slots: Mutex<NewestState<T>>,
+    ready: Condvar,
+}
+
+struct NewestState<T> {
+    values: Vec<Option<T>>,
+    closed: bool,
+    next: usize,
+}
+
+impl<T> Newest<T> {
+    fn new(n: usize) -> Newest<T> {
+        Newest {
+            slots: Mutex::new(NewestState {
+                values: (0..n).map(|_| None).collect(),
+                closed: false,
+                next: 0,
+            }),
+            ready: Condvar::new(),
+        }
+    }
+
+    /// Put `v` in slot `k`; true when it replaced one that was never taken.
+    fn put(&self, k: usize, v: T) -> bool {
+        let mut s = self.slots.lock().unwrap_or_else(|e| e.into_inner());
+        let replaced = s.values[k].replace(v).is_some();
+        self.ready.notify_one();
+        replaced
+    }
+
+    fn close(&self) {
+        self.slots.lock().unwrap_or_else(|e| e.into_inner()).closed = true;
+        self.ready.notify_all();
+    }
+
+    /// The next value and its slot, or `None` once closed (what was not taken is dropped).
+    fn take(&self) -> Option<(usize, T)> {
+        let mut s = self.slots.lock().unwrap_or_else(|e| e.into_inner());
+        loop {
+            if s.closed {
+                return None;
+            }
+            let n = s.values.len();
+            for d in 0..n {
+                let k = (s.next + d) % n;
+                if let Some(v) = s.values[k].take() {
+                    s.next = (k + 1) % n;
+                    return Some((k, v));
+                }
+            }
+            s = self.ready.wait(s).unwrap_or_else(|e| e.into_inner());
+        }
+    }
+}
+
+/// One captured frame on its way to computation.
+struct Captured {
+    frame: u64,
+    timestamp_ns: u64,
+    arrived: Instant,
+    image: GrayImage,
+}
+
+/// What a stream publishes with.
+pub struct Publish<'a> {
+    /// The Zenoh session.
+    pub session: &'a Session,
+    /// Cell name.
+    pub cell: &'a str,
+    /// The cell's single-shot settings (the fusion range).
+    pub config: &'a SingleShotSection,
+    /// Whether risd is stopping.
+    pub stopping: &'a (dyn Fn() -> bool + Sync),
+    /// Called every round: the worker's sign of life.
+    pub beat: &'a (dyn Fn() + Sync),
+}
+
+/// Run the stream `spec` (of `generation`) on `cell` until it is stopped or replaced, a job
+/// arrives on `jobs`, or risd stops.
+pub fn run<J>(
+    cell: &mut Cell,
+    spec: &StreamSpec,
+    generation: u64,
+    control: &StreamControl,
+    out: &Publish,
+    jobs: &std::sync::mpsc::Receiver<J>,
+) -> StreamEnd<J> {
+    let result = stream(cell, spec, generation, control, out, jobs);
+    for p in cell.pairs.iter_mut() {
+        if spec.sensors.contains(&p.name) {
+            let _ = p.camera.stop();
+        }
+    }
+    match result {
+        Ok(end) => {
+            if matches!(end, StreamEnd::Job(_)) {
+                control.set_state(generation, "paused");
+            }
+            end
+        }
+        Err(e) => {
+            let reason = format!("{e:#}");
+            tracing::warn!(%reason, "stream failed");
+            control.failed(generation, reason);
+            StreamEnd::Stopped
+        }
+    }
+}
+
+fn stream<J>(
+    cell: &mut Cell,
+    spec: &StreamSpec,
+    generation: u64,
+    control: &StreamControl,
+    out: &Publish,
+    jobs: &std::sync::mpsc::Receiver<J>,
+) -> Result<StreamEnd<J>> {
+    cell.reconnect();
+    let chosen: Vec<usize> = cell
+        .pairs
+        .iter()
+        .enumerate()
+        .filter(|(_, p)| spec.sensors.contains(&p.name))
+        .map(|(i, _)| i)
+        .collect();
+    let mut groups: Vec<u32> = chosen.iter().map(|&i| cell.pairs[i].group).collect();
+    groups.sort_unstable();
+    groups.dedup();
+    // Each pair shows its pattern (slot 0) while its exposure group captures, black (slot 1)
+    // while another group does.
+    for &i in &chosen {
+        let p = &mut cell.pairs[i];
+        let single = p.single_shot.clone().map_err(|why| anyhow!(why))?;
+        let slides = [single.slide.clone(), Slide::plain(Pattern::Black)];
+        p.projector
+            .load(&slides)
+            .with_context(|| format!("sensor {}: loading the X-point pattern", p.name))?;
+        p.projector
+            .show(usize::from(groups.len() > 1))
+            .with_context(|| format!("sensor {}: projecting", p.name))?;
+        let _ = p.camera.stop();
+        p.camera
+            .set_trigger(p.sequence.trigger.clone())
+            .with_context(|| format!("sensor {}: trigger", p.name))?;
+        p.camera
+            .start()
+            .with_context(|| format!("sensor {}: starting the camera", p.name))?;
+    }
+    control.set_state(generation, "streaming");
+    tracing::info!(sensors = ?spec.sensors, rate_hz = spec.rate_hz, "stream started");
+    let slots: Newest<Captured> = Newest::new(chosen.len());
+    let period = Duration::from_secs_f64(1.0 / spec.rate_hz);
+    let computers: Vec<_> = chosen
+        .iter()
+        .map(|&i| {
+            let p = &cell.pairs[i];
+            (
+                p.name.clone(),
+                p.reconstructor.clone(),
+                p.to_common,
+                p.single_shot.clone().map_err(|why| anyhow!(why)),
+            )
+        })
+        .collect();
+    std::thread::scope(|scope| -> Result<StreamEnd<J>> {
+        let slots = &slots;
+        let computers = &computers;
+        let compute = scope.spawn(move || {
+            // One thread computes every sensor in turn (each frame is data-parallel inside).
+            while let Some((k, c)) = slots.take() {
+                if let Err(e) = publish_frame(&computers[k], c, generation, control, out) {
+                    tracing::warn!(sensor = %computers[k].0, error = %format!("{e:#}"), "stream frame not published");
+                }
+            }
+        });
+        let ended = (|| -> Result<StreamEnd<J>> {
+            let mut numbers = vec![0u64; chosen.len()];
+            let mut last_ns = vec![0u64; chosen.len()];
+            loop {
+                let round = Instant::now();
+                (out.beat)();
+                if (out.stopping)() || !control.current(generation) {
+                    return Ok(StreamEnd::Stopped);
+                }
+                match jobs.try_recv() {
+                    Ok(job) => return Ok(StreamEnd::Job(job)),
+                    Err(std::sync::mpsc::TryRecvError::Disconnected) => {
+                        return Ok(StreamEnd::Closed)
+                    }
+                    Err(std::sync::mpsc::TryRecvError::Empty) => {}
+                }
+                for g in &groups {
+                    if groups.len() > 1 {
+                        for &i in &chosen {
+                            let p = &mut cell.pairs[i];
+                            p.projector
+                                .show(usize::from(p.group != *g))
+                                .with_context(|| format!("sensor {}: projecting", p.name))?;
+                        }
+                    }
+                    for (k, &i) in chosen.iter().enumerate() {
+                        let p = &mut cell.pairs[i];
+                        if p.group != *g {
+                            continue;
+                        }
+                        let frame = grab(p).map_err(|e| {
+                            let e = e.context(format!("sensor {}: streaming", p.name));
+                            p.note_failure(&e);
+                            e
+                        })?;
+                        let arrived = Instant::now();
+                        let unix = SystemTime::now()
+                            .duration_since(SystemTime::UNIX_EPOCH)
+                            .map_or(0, |d| d.as_nanos() as u64);
+                        // Timestamps of one sensor strictly increase, whatever the clock does.
+                        let ts = unix.max(last_ns[k] + 1);
+                        last_ns[k] = ts;
+                        numbers[k] += 1;
+                        let replaced = slots.put(
+                            k,
+                            Captured {
+                                frame: numbers[k],
+                                timestamp_ns: ts,
+                                arrived,
+                                image: frame,
+                            },
+                        );
+                        control.count(generation, &p.name, |c| {
+                            c.frames += 1;
+                            c.dropped += u64::from(replaced);
+                        });
+                    }
+                }
+                if let Some(rest) = period.checked_sub(round.elapsed()) {
+                    std::thread::sleep(rest);
+                }
+            }
+        })();
+        slots.close();
+        compute
+            .join()
+            .map_err(|_| anyhow!("the stream's compute thread panicked"))?;
+        ended
+    })
+}
+
+/// Trigger `p`'s camera once and wait for the frame.
+fn grab(p: &mut crate::pair::Pair) -> Result<GrayImage> {
+    if p.sequence.trigger == ris_drivers::TriggerMode::Software {
+        p.camera.trigger().context("trigger")?;
+    }
+    let frame = p
+        .camera
+        .next_frame(p.sequence.timeout)
+        .context("waiting for the frame")?;
+    Ok(frame.image)
+}
+
+type Computer = (
+    String,
+    Arc<ris_core::sensor::Reconstructor>,
+    nalgebra::Matrix4<f64>,
+    Result<Arc<crate::single_shot::PairSingleShot>>,
+);
+
+/// Compute one frame and publish its cloud (cell frame, binary PLY) and fusion picture (PNG),
+/// each with the attachment `{"frame", "timestamp_ns", "points", "latency_ms"}`.
+fn publish_frame(
+    (name, rec, to_common, single): &Computer,
+    c: Captured,
+    generation: u64,
+    control: &StreamControl,
+    out: &Publish,
+) -> Result<()> {
+    let single = single.as_ref().map_err(|e| anyhow!("{e:#}"))?;
+    let f = single.cloud(&c.image, rec)?;
+    let centre = rec.camera().center();
+    let eye = [centre.x, centre.y, centre.z];
+    let range = match out.config.range_mm {
+        Some([near, far]) => FusionRange::new(near, far, "[single_shot] range_mm")?,
+        None => FusionRange::covering(&f.cloud, eye)
+            .unwrap_or(FusionRange::new(0.0, 1000.0, "default")?),
+    };
+    let picture = fuse(&c.image, &f.cloud, eye, range, None)?.png()?;
+    let mut cloud = f.cloud;
+    for p in cloud.points.iter_mut() {
+        let v = to_common
+            * nalgebra::Vector4::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]), 1.0);
+        *p = [v.x as f32, v.y as f32, v.z as f32];
+    }
+    let ply = cloud.to_ply();
+    let points = cloud.len();
+    let latency_ms = c.arrived.elapsed().as_secs_f64() * 1e3;
+    let attachment = serde_json::json!({
+        "frame": c.frame,
+        "timestamp_ns": c.timestamp_ns,
+        "points": points,
+        "latency_ms": latency_ms,
+        "range_mm": [range.near, range.far],
+    })
+    .to_string();
+    control.set_latest(
+        name,
+        Latest {
+            frame: c.frame,
+            timestamp_ns: c.timestamp_ns,
+            cloud,
+        },
+    );
+    for (what, bytes) in [("cloud", ply), ("fused", picture)] {
+        let key = sensor_key(out.cell, name, what);
+        out.session
+            .put(&key, bytes)
+            .attachment(attachment.clone())
+            .congestion_control(CongestionControl::Drop)
+            .wait()
+            .map_err(|e| anyhow!("publishing {key}: {e}"))?;
+    }
+    control.count(generation, name, |s| {
+        s.published += 1;
+        s.points = points;
+        s.latency_ms = latency_ms;
+    });
+    tracing::debug!(sensor = %name, frame = c.frame, points, latency_ms, "stream frame");
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn start_requests_are_checked() {
+        let cell = ["s1".to_string(), "s2".to_string()];
+        let r = |b: &str| StreamRequest::parse(b.as_bytes());
+        let spec = r(r#"{"action": "start", "sensors": ["s2"], "rate": 5}"#)
+            .expect("parse")
+            .spec(&cell, 10.0)
+            .expect("spec");
+        assert_eq!(spec.sensors, ["s2"]);
+        assert_eq!(spec.rate_hz, 5.0);
+        let all = r(r#"{"action": "start"}"#)
+            .expect("parse")
+            .spec(&cell, 10.0);
+        assert_eq!(all.expect("spec").sensors.len(), 2);
+        for bad in [
+            r#"{"rate": 0}"#,
+            r#"{"rate": 1e9}"#,
+            r#"{"sensors": []}"#,
+            r#"{"sensors": ["s9"]}"#,
+        ] {
+            assert!(r(bad).expect("parse").spec(&cell, 10.0).is_err(), "{bad}");
+        }
+        for bad in ["[1]", "{\"x\": 1}", "nope"] {
+            assert!(r(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn the_newest_frame_replaces_one_not_taken() {
+        let slot = Newest::new(2);
+        assert!(!slot.put(0, 1));
+        assert!(slot.put(0, 2));
+        assert!(!slot.put(1, 7));
+        assert_eq!(slot.take(), Some((0, 2)));
+        assert!(!slot.put(0, 3));
+        // Round the sensors: slot 1 before slot 0 again.
+        assert_eq!(slot.take(), Some((1, 7)));
+        assert_eq!(slot.take(), Some((0, 3)));
+        slot.close();
+        assert_eq!(slot.take(), None);
+    }
+}

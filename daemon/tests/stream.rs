@@ -1,0 +1,367 @@
+//! Single-shot streaming and scans from risd over Zenoh on 127.0.0.1 (issue 15 item 5): the
+//! mock cell streams; this test's own Zenoh session follows the publications while `ris stream`
+//! drives the stream; clouds are checked against the simulator's truth, the fusion pictures
+//! decoded, the pixel query asked, and a scan taken while a stream runs.
+
+use std::path::Path;
+use std::process::Command;
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use zenoh::Wait;
+
+mod common;
+use common::{ask, client, free_port, output_within, states, wait_end, Risd};
+
+fn repo() -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// A sample of the stream: (sensor, what, attachment, payload).
+type Sample = (String, String, serde_json::Value, Vec<u8>);
+
+/// Each point of `cloud` (cell frame) against the surface the sensor's camera sees at its pixel
+/// (the simulator's ray cast, through the sensor's transform): |error| per point, mm.
+fn errors(
+    cloud: &ris_core::cloud::PointCloud,
+    sensor: &str,
+    to_common: &nalgebra::Matrix4<f64>,
+) -> Vec<f64> {
+    let scene = ris_core::sim::Scene::load(&repo().join(format!("config/mock-cell/{sensor}.toml")))
+        .expect("scene");
+    let sim = ris_core::sim::Simulator::new(scene);
+    let truth = &sim.cache.truth;
+    let mut e: Vec<f64> = cloud
+        .points
+        .iter()
+        .zip(&cloud.pixels)
+        .filter_map(|(p, &px)| {
+            let t = truth.xyz[px as usize];
+            t[0].is_finite().then(|| {
+                let c = to_common
+                    * nalgebra::Vector4::new(
+                        f64::from(t[0]),
+                        f64::from(t[1]),
+                        f64::from(t[2]),
+                        1.0,
+                    );
+                ((f64::from(p[0]) - c.x).powi(2)
+                    + (f64::from(p[1]) - c.y).powi(2)
+                    + (f64::from(p[2]) - c.z).powi(2))
+                .sqrt()
+            })
+        })
+        .collect();
+    e.sort_by(f64::total_cmp);
+    e
+}
+
+#[test]
+fn risd_streams_single_shot_clouds_and_answers_pixel_queries() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let config_dir = repo().join("config");
+    let mock = std::fs::read_to_string(config_dir.join("mock-cell.toml")).expect("mock cell");
+    let config = mock.replace(
+        "\"mock-cell/",
+        &format!("\"{}/mock-cell/", config_dir.display()),
+    )
+        + "\n[single_shot]\nstep = [14, 14]\nrate_hz = 20.0\nrange_mm = [1450.0, 1650.0]\n";
+    let config_path = dir.path().join("cell.toml");
+    std::fs::write(&config_path, &config).expect("config");
+    let cell =
+        ris_daemon::config::CellConfig::parse(&config, Path::new("/"), "test").expect("parsed");
+    let to_common = |s: &str| {
+        cell.sensors
+            .iter()
+            .find(|c| c.name == s)
+            .and_then(|c| c.to_common)
+            .expect("to_common")
+    };
+    let data = dir.path().join("data");
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let mut risd = Risd::start(&[
+        "--config".as_ref(),
+        config_path.as_os_str(),
+        "--listen".as_ref(),
+        endpoint.as_ref(),
+        "--data-dir".as_ref(),
+        data.as_os_str(),
+    ]);
+    risd.wait_ready(Duration::from_secs(120));
+    let session = client(&endpoint);
+    let (tx, rx) = mpsc::channel::<Sample>();
+    let _sub = session
+        .declare_subscriber("ris/mock/stream/*/*")
+        .callback(move |s| {
+            let parts: Vec<String> = s
+                .key_expr()
+                .as_str()
+                .split('/')
+                .map(str::to_string)
+                .collect();
+            let meta = s
+                .attachment()
+                .and_then(|a| serde_json::from_slice(&a.to_bytes()).ok())
+                .unwrap_or_default();
+            let _ = tx.send((
+                parts[3].clone(),
+                parts[4].clone(),
+                meta,
+                s.payload().to_bytes().into_owned(),
+            ));
+        })
+        .wait()
+        .expect("subscriber");
+
+    // Before any stream: the pixel query says there is nothing yet.
+    let early = ask(&session, "ris/mock/stream/s1/point?u=400&v=300", None);
+    assert!(
+        matches!(early.first(), Some(Err(e)) if e.contains("no streamed frame")),
+        "{early:?}"
+    );
+
+    // `ris stream` starts, shows and stops a stream of s1 and s2.
+    let out = dir.path().join("stream");
+    let o = output_within(
+        Command::new(env!("CARGO_BIN_EXE_ris")).args([
+            "stream",
+            "--connect",
+            &endpoint,
+            "--sensor",
+            "s1",
+            "--sensor",
+            "s2",
+            "--frames",
+            "20",
+            "--out",
+            out.to_str().expect("utf-8"),
+        ]),
+        Duration::from_secs(240),
+    );
+    let said = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(
+        o.status.success(),
+        "ris stream: {said}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    eprintln!("{said}");
+    assert!(said.contains("s1: ") && said.contains("s2: "), "{said}");
+
+    let got: Vec<Sample> = rx.try_iter().collect();
+    for sensor in ["s1", "s2"] {
+        let clouds: Vec<&Sample> = got
+            .iter()
+            .filter(|s| s.0 == sensor && s.1 == "cloud")
+            .collect();
+        assert!(clouds.len() >= 20, "{sensor}: {} clouds", clouds.len());
+        let ts: Vec<u64> = clouds
+            .iter()
+            .map(|c| c.2["timestamp_ns"].as_u64().expect("timestamp"))
+            .collect();
+        let frames: Vec<u64> = clouds
+            .iter()
+            .map(|c| c.2["frame"].as_u64().expect("frame"))
+            .collect();
+        assert!(
+            ts.windows(2).all(|w| w[1] > w[0]) && frames.windows(2).all(|w| w[1] > w[0]),
+            "{sensor}: timestamps {ts:?}, frames {frames:?}"
+        );
+        // The frames are stamped now (within a minute), not at some epoch.
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .expect("clock")
+            .as_nanos() as u64;
+        assert!(now - ts[0] < 60_000_000_000, "{sensor}: stamped {}", ts[0]);
+        // Every cloud: organised on the camera, in the cell frame, on the true surface.
+        for (k, c) in clouds.iter().enumerate().step_by(7) {
+            let cloud = ris_core::cloud::PointCloud::from_ply(&c.3, Path::new("stream"))
+                .expect("a PLY cloud");
+            assert_eq!(cloud.organised(), Some([800, 600]));
+            assert_eq!(cloud.len() as u64, c.2["points"].as_u64().expect("points"));
+            assert!(
+                cloud.len() > 1200,
+                "{sensor} cloud {k}: {} points",
+                cloud.len()
+            );
+            let e = errors(&cloud, sensor, &to_common(sensor));
+            let q = |f: f64| e[((e.len() - 1) as f64 * f) as usize];
+            assert!(
+                q(0.5) < 0.8 && q(0.98) < 3.0,
+                "{sensor} cloud {k}: median {:.2} mm, 98 % {:.2} mm",
+                q(0.5),
+                q(0.98)
+            );
+        }
+        // The fusion pictures: the camera image and the bar, red to blue within the range.
+        let fused: Vec<&Sample> = got
+            .iter()
+            .filter(|s| s.0 == sensor && s.1 == "fused")
+            .collect();
+        assert!(!fused.is_empty(), "{sensor}: no fusion picture");
+        let picture = image::load_from_memory(&fused[fused.len() - 1].3)
+            .expect("a PNG")
+            .into_rgb8();
+        assert_eq!((picture.width(), picture.height()), (920, 600));
+        assert_eq!(fused[0].2["range_mm"], serde_json::json!([1450.0, 1650.0]));
+        // What `ris stream` kept.
+        assert!(
+            out.join(format!("{sensor}.ply")).exists()
+                && out.join(format!("{sensor}.png")).exists()
+        );
+    }
+    assert!(
+        !got.iter().any(|s| s.0 == "s3" || s.0 == "s4"),
+        "only the asked sensors stream"
+    );
+
+    // The pixel query: the point at the picked pixel, in the cell frame, on the true surface.
+    let answer = ask(&session, "ris/mock/stream/s1/point?u=400&v=300", None);
+    let v: serde_json::Value = match answer.first() {
+        Some(Ok(text)) => serde_json::from_str(text).expect("json"),
+        other => panic!("point query: {other:?}"),
+    };
+    assert!(v["pixel_distance"].as_f64() < Some(10.0), "{v}");
+    let pixel = [
+        v["pixel"][0].as_f64().expect("x") as u32,
+        v["pixel"][1].as_f64().expect("y") as u32,
+    ];
+    let point = ris_core::cloud::PointCloud {
+        points: vec![[
+            v["point_mm"][0].as_f64().expect("x") as f32,
+            v["point_mm"][1].as_f64().expect("y") as f32,
+            v["point_mm"][2].as_f64().expect("z") as f32,
+        ]],
+        pixels: vec![pixel[1] * 800 + pixel[0]],
+        image: Some([800, 600]),
+        ..Default::default()
+    };
+    let e = errors(&point, "s1", &to_common("s1"));
+    assert!(e.len() == 1 && e[0] < 2.0, "{v}: {e:?} mm off the surface");
+    for (bad, needle) in [
+        ("ris/mock/stream/s1/point?u=400", "`v` is missing"),
+        ("ris/mock/stream/s1/point?u=x&v=3", "not a number"),
+        ("ris/mock/stream/s1/point?u=9000&v=3", "outside"),
+        ("ris/mock/stream/s3/point?u=4&v=3", "no streamed frame"),
+    ] {
+        let r = ask(&session, bad, None);
+        assert!(
+            matches!(r.first(), Some(Err(e)) if e.contains(needle)),
+            "{bad}: {r:?}"
+        );
+    }
+
+    // Health tells the stream that ran.
+    let health = ask(&session, "ris/mock/health", None);
+    let h: serde_json::Value = match health.first() {
+        Some(Ok(t)) => serde_json::from_str(t).expect("json"),
+        other => panic!("health: {other:?}"),
+    };
+    assert_eq!(h["stream"]["state"], "stopped", "{h}");
+    assert!(
+        h["stream"]["sensors"]["s1"]["frames"].as_u64() >= Some(20),
+        "{h}"
+    );
+
+    // A bad start is refused by name.
+    let r = ask(
+        &session,
+        "ris/mock/stream",
+        Some(r#"{"action": "start", "sensors": ["s9"]}"#),
+    );
+    assert!(
+        matches!(r.first(), Some(Err(e)) if e.contains("s9")),
+        "{r:?}"
+    );
+
+    // A single-shot scan while a stream runs: the stream pauses for it and goes on after.
+    let (_states_sub, states_rx) = states(&session, "mock");
+    let r = ask(
+        &session,
+        "ris/mock/stream",
+        Some(r#"{"action": "start", "sensors": ["s1"]}"#),
+    );
+    assert!(matches!(r.first(), Some(Ok(_))), "{r:?}");
+    let t = Instant::now();
+    let mut seen = 0;
+    while seen < 2 {
+        assert!(
+            t.elapsed() < Duration::from_secs(60),
+            "the stream did not start"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+        seen += rx.try_iter().filter(|s| s.1 == "cloud").count();
+    }
+    let r = ask(
+        &session,
+        "ris/mock/scan",
+        Some(r#"{"mode": "single-shot", "sensors": ["s2"]}"#),
+    );
+    let id = match r.first() {
+        Some(Ok(t)) => serde_json::from_str::<serde_json::Value>(t).expect("json")["scan_id"]
+            .as_str()
+            .expect("scan id")
+            .to_string(),
+        other => panic!("scan: {other:?}"),
+    };
+    let done = wait_end(&states_rx, &id);
+    assert_eq!(done["state"], "done", "{done}");
+    assert!(done["merged_points"].as_u64() > Some(1200), "{done}");
+    assert!(
+        done["inspection"].is_null(),
+        "single-shot scans are not inspected unless asked: {done}"
+    );
+    let after = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .expect("clock")
+        .as_nanos() as u64;
+    let t = Instant::now();
+    let mut seen = 0;
+    while seen < 3 {
+        assert!(
+            t.elapsed() < Duration::from_secs(60),
+            "the stream did not resume after the scan"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+        seen += rx
+            .try_iter()
+            .filter(|s| s.0 == "s1" && s.1 == "cloud" && s.2["timestamp_ns"].as_u64() > Some(after))
+            .count();
+    }
+    let s2 = ris_core::cloud::PointCloud::read_ply(&data.join("scans").join(&id).join("s2.ply"))
+        .expect("the scan's s2 cloud");
+    // Scan clouds are in the sensor frame.
+    let e = errors(
+        &ris_core::cloud::PointCloud {
+            points: s2
+                .points
+                .iter()
+                .map(|p| {
+                    let c = to_common("s2")
+                        * nalgebra::Vector4::new(
+                            f64::from(p[0]),
+                            f64::from(p[1]),
+                            f64::from(p[2]),
+                            1.0,
+                        );
+                    [c.x as f32, c.y as f32, c.z as f32]
+                })
+                .collect(),
+            ..s2.clone()
+        },
+        "s2",
+        &to_common("s2"),
+    );
+    assert!(
+        e[e.len() / 2] < 0.8,
+        "s2 scan: median {:.2} mm",
+        e[e.len() / 2]
+    );
+    let r = ask(&session, "ris/mock/stream", Some(r#"{"action": "stop"}"#));
+    assert!(
+        matches!(r.first(), Some(Ok(t)) if t.contains("stopped")),
+        "{r:?}"
+    );
+    drop(session);
+    let (status, log) = risd.terminate();
+    assert!(status.success(), "risd exit {status:?}: {log:#?}");
+}

@@ -5,6 +5,7 @@
 
 pub mod accuracy;
 mod light;
+pub mod motion;
 mod render;
 mod scene;
 mod session;

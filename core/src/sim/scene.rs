@@ -132,6 +132,9 @@ pub struct ObjectSection {
     /// Panel curvatures (1/mm) along x and y: z = −(cx x² + cy y²) / 2 over `size` (x, y).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub curvature: Option<[f64; 2]>,
+    /// Velocity, mm/s: the object moves on a line (`Scene::at`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub velocity: Option<[f64; 3]>,
     /// Gauge file whose markers are painted on this object; centres are in the object's own
     /// frame and move with its pose.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -505,11 +508,29 @@ impl Scene {
                     ))
                 }
             };
-            objects.push(Object {
-                shape,
-                material,
-                markers,
-            });
+            let velocity = match o.velocity {
+                None => Vec3::zeros(),
+                Some(v) if v.iter().all(|x| x.is_finite() && x.abs() <= 1e6) => {
+                    if matches!(shape, Shape::Plane) && v.iter().any(|x| *x != 0.0) {
+                        return Err(Error::invalid(
+                            ctx,
+                            f("velocity"),
+                            "the reference plane does not move",
+                        ));
+                    }
+                    Vec3::new(v[0], v[1], v[2])
+                }
+                Some(v) => {
+                    return Err(Error::invalid(
+                        ctx,
+                        f("velocity"),
+                        format!("{v:?}: each component must be a number of mm/s within ±1e6"),
+                    ))
+                }
+            };
+            let mut object = Object::still(shape, material, markers);
+            object.velocity = velocity;
+            objects.push(object);
         }
         if objects.is_empty() && file.calibration.is_none() {
             return Err(Error::invalid(ctx, "object", "the scene has no objects"));
@@ -563,23 +584,37 @@ impl Scene {
                 interreflection_radius: 0.0,
                 texture: Texture::None,
             });
-            s.objects.push(Object {
-                shape: Shape::Plane,
-                material: s.materials.len() - 1,
-                markers: None,
-            });
+            s.objects
+                .push(Object::still(Shape::Plane, s.materials.len() - 1, None));
         }
         s
     }
 
-    /// Albedo of object `obj` at surface point `p` (material, texture, painted markers).
+    /// Albedo of object `obj` at surface point `p` (material, texture, painted markers; they
+    /// move with the object).
     pub fn albedo(&self, obj: usize, p: &Vec3) -> f64 {
         let o = &self.objects[obj];
-        if let Some(m) = o.markers.as_ref().filter(|m| m.covers(p)) {
+        let p = p - o.offset;
+        if let Some(m) = o.markers.as_ref().filter(|m| m.covers(&p)) {
             return m.albedo;
         }
         let mat = &self.materials[o.material];
-        (mat.albedo * mat.texture.factor(p)).clamp(0.0, 1.0)
+        (mat.albedo * mat.texture.factor(&p)).clamp(0.0, 1.0)
+    }
+
+    /// The scene `t` seconds after the pose its file gives: every object displaced by its
+    /// velocity × `t`.
+    pub fn at(&self, t: f64) -> Scene {
+        let mut s = self.clone();
+        for o in &mut s.objects {
+            o.offset = o.velocity * t;
+        }
+        s
+    }
+
+    /// Whether any object moves.
+    pub fn moving(&self) -> bool {
+        self.objects.iter().any(|o| o.velocity.norm() > 0.0)
     }
 
     /// Nearest hit along `o + t d`, `t` in `(t_min, t_max)`: (t, outward unit normal, object).
@@ -593,7 +628,9 @@ impl Scene {
         let mut best: Option<(f64, Vec3, usize)> = None;
         let mut limit = t_max;
         for (i, obj) in self.objects.iter().enumerate() {
-            if let Some((t, n)) = obj.shape.intersect(o, d, t_min, limit) {
+            // A displaced object: the ray moved the other way.
+            let from = o - obj.offset;
+            if let Some((t, n)) = obj.shape.intersect(&from, d, t_min, limit) {
                 limit = t;
                 best = Some((t, n, i));
             }

@@ -96,22 +96,22 @@ fn layer_scene(
         c.thickness / 2.0,
     );
     s.objects = vec![
-        Object {
-            shape: Shape::Box {
+        Object::still(
+            Shape::Box {
                 center: Vec3::new(0.0, 0.0, -c.thickness - 50.0),
                 half: Vec3::new(5000.0, 5000.0, 50.0),
             },
-            material: table,
-            markers: None,
-        },
-        Object {
-            shape: Shape::Box {
+            table,
+            None,
+        ),
+        Object::still(
+            Shape::Box {
                 center: Vec3::new(0.0, 0.0, height - c.thickness / 2.0),
                 half,
             },
-            material: board,
-            markers: None,
-        },
+            board,
+            None,
+        ),
     ];
     s
 }

@@ -13,6 +13,24 @@ pub struct Object {
     pub material: usize,
     /// Markers painted over the material (gauges).
     pub markers: Option<MarkerPaint>,
+    /// Velocity, mm/s (a part moving on a line); zero for a still object.
+    pub velocity: Vec3,
+    /// Displacement from the pose the scene file gives, at the time the scene is rendered
+    /// ([`super::Scene::at`]).
+    pub offset: Vec3,
+}
+
+impl Object {
+    /// A still object.
+    pub fn still(shape: Shape, material: usize, markers: Option<MarkerPaint>) -> Object {
+        Object {
+            shape,
+            material,
+            markers,
+            velocity: Vec3::zeros(),
+            offset: Vec3::zeros(),
+        }
+    }
 }
 
 /// Geometry of a scene object.

@@ -68,6 +68,28 @@ enum ExperimentCommand {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// Ch. 7.1.2: error and completeness of a Gray-code scan against one single-shot frame as
+    /// the part (every object but the reference plane) moves faster.
+    Motion {
+        /// Scene file.
+        #[arg(long)]
+        scene: PathBuf,
+        /// Part speeds, mm/s.
+        #[arg(long, value_delimiter = ',', default_value = "0,5,20,50,100,200")]
+        speeds: Vec<f64>,
+        /// Direction of motion X,Y,Z (scene frame).
+        #[arg(long, value_delimiter = ',', default_value = "1,0,0", num_args = 1)]
+        direction: Vec<f64>,
+        /// Frames per second of the projector-camera sequence.
+        #[arg(long, default_value_t = 60.0)]
+        fps: f64,
+        /// Exposure of each frame, ms.
+        #[arg(long, default_value_t = 5.0)]
+        exposure_ms: f64,
+        /// JSON on stdout instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -864,6 +886,24 @@ fn main() -> Result<()> {
             )?;
             if let Some(code) = verdict_exit_code(&report.verdict) {
                 std::process::exit(code);
+            }
+        }
+        Command::Experiment(ExperimentCommand::Motion {
+            scene,
+            speeds,
+            direction,
+            fps,
+            exposure_ms,
+            json,
+        }) => {
+            let [x, y, z] = direction[..] else {
+                anyhow::bail!("--direction: three numbers X,Y,Z");
+            };
+            let m = commands::experiment::motion(&scene, &speeds, [x, y, z], fps, exposure_ms)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&m)?);
+            } else {
+                commands::experiment::print_motion(&m);
             }
         }
         Command::Experiment(ExperimentCommand::Completeness { scene, json, out }) => {

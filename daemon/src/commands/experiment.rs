@@ -210,3 +210,181 @@ pub fn print_table(c: &Completeness) {
         100.0 * c.adaptive_measured_fraction
     );
 }
+
+/// One speed of the motion experiment.
+#[derive(Clone, Debug, Serialize)]
+pub struct MotionRow {
+    /// Part speed, mm/s.
+    pub speed_mm_s: f64,
+    /// How far the part travels during the Gray-code sequence, mm.
+    pub gray_travel_mm: f64,
+    /// Gray-code scan: points.
+    pub gray_points: usize,
+    /// Gray-code scan: mean |error| against the part at the sequence's middle, mm.
+    pub gray_mean_abs_mm: f64,
+    /// Gray-code scan: points within 1 mm of the part at the sequence's middle.
+    pub gray_within_1mm: usize,
+    /// Single-shot frame: points.
+    pub single_points: usize,
+    /// Single-shot frame: mean |error| against the part at the frame's time, mm.
+    pub single_mean_abs_mm: f64,
+    /// Single-shot frame: points within 1 mm.
+    pub single_within_1mm: usize,
+}
+
+/// The motion experiment's set-up and result.
+#[derive(Clone, Debug, Serialize)]
+pub struct Motion {
+    /// Frames per second of the Gray-code sequence.
+    pub fps: f64,
+    /// Exposure per frame, ms.
+    pub exposure_ms: f64,
+    /// Frames of the Gray-code sequence.
+    pub gray_frames: usize,
+    /// Direction of motion (unit).
+    pub direction: [f64; 3],
+    /// One row per speed.
+    pub rows: Vec<MotionRow>,
+}
+
+/// Ch. 7.1.2's argument, measured: the objects of `scene_path` (all but the reference plane)
+/// move at each of `speeds` (mm/s) along `direction`; a Gray-code scan (frame k exposed at
+/// k / fps) and one single-shot frame are reconstructed through the parallax model of the
+/// still reference, and compared with where the part is.
+pub fn motion(
+    scene_path: &Path,
+    speeds: &[f64],
+    direction: [f64; 3],
+    fps: f64,
+    exposure_ms: f64,
+) -> Result<Motion> {
+    use ris_core::pattern::{Pattern, ProjectionMask};
+    use ris_core::sim::motion::{
+        capture_at_frame_times, depth_errors, frame_at, sequence_span, Timing,
+    };
+    use ris_core::single_shot::{self, DetectParams, ReferencePrediction, XPointPattern};
+
+    anyhow::ensure!(
+        fps.is_finite() && fps > 0.0,
+        "--fps {fps}: a positive number of frames per second"
+    );
+    anyhow::ensure!(
+        exposure_ms.is_finite() && exposure_ms > 0.0 && exposure_ms * fps <= 1000.0,
+        "--exposure-ms {exposure_ms}: positive and at most one frame period ({:.1} ms)",
+        1000.0 / fps
+    );
+    anyhow::ensure!(
+        !speeds.is_empty() && speeds.iter().all(|s| s.is_finite() && *s >= 0.0),
+        "--speeds: non-negative speeds in mm/s"
+    );
+    let norm = direction.iter().map(|d| d * d).sum::<f64>().sqrt();
+    anyhow::ensure!(
+        norm > 0.0 && norm.is_finite(),
+        "--direction: a non-zero vector"
+    );
+    let dir = nalgebra::Vector3::new(direction[0], direction[1], direction[2]) / norm;
+    let scene = Scene::load(scene_path)
+        .with_context(|| format!("reading scene {}", scene_path.display()))?;
+    let params = DecodeParams::default();
+    let board = Simulator::new(scene.sprayed().reference());
+    let layout = board.layout();
+    let reference = decode(&board.capture(&layout, 1000, &|_, _| {}), &params)
+        .context("decoding the reference recording")?;
+    let rec = Reconstructor::parallax(&scene.camera, scene.projector.center(), &reference)
+        .context("fitting the parallax model to the reference")?;
+    let predict = ReferencePrediction::new(&reference)
+        .context("the reference has no row codes (the scene needs rows = true)")?;
+    let at = |x: f64, y: f64| predict.at(x, y);
+    let xpoint = XPointPattern::generate(layout.width, layout.height, [14, 14], 3, 1)?;
+    let picture = ProjectionMask::picture(layout.width, layout.height, &xpoint.render());
+    let timing = Timing {
+        fps,
+        exposure_s: exposure_ms / 1000.0,
+    };
+    let span = sequence_span(&scene, &layout, timing);
+    let frames = layout.sequence(scene.render.rows).len();
+    let pb = progress::bar((speeds.len() * (frames + 1)) as u64, "motion");
+    let summary = |e: &[f64]| {
+        let finite: Vec<f64> = e.iter().copied().filter(|v| v.is_finite()).collect();
+        let mean = finite.iter().map(|v| v.abs()).sum::<f64>() / finite.len().max(1) as f64;
+        (mean, finite.iter().filter(|v| v.abs() <= 1.0).count())
+    };
+    let mut rows = Vec::new();
+    for &speed in speeds {
+        let mut moving = scene.clone();
+        for o in &mut moving.objects {
+            if !matches!(o.shape, ris_core::sim::Shape::Plane) {
+                o.velocity = dir * speed;
+            }
+        }
+        pb.set_message(format!("{speed} mm/s"));
+        let capture = capture_at_frame_times(&moving, &layout, timing, 7, &|_, _| pb.inc(1));
+        let gray = rec
+            .reconstruct(&decode(&capture, &params).context("decoding the moving scan")?)
+            .context("reconstructing the moving scan")?;
+        let (gray_mean, gray_good) = summary(&depth_errors(&moving.at(span / 2.0), &gray));
+        let image = frame_at(
+            &moving,
+            &layout,
+            Pattern::White,
+            Some(&picture),
+            0.0,
+            timing.exposure_s,
+            9,
+        );
+        pb.inc(1);
+        let found = single_shot::detect(
+            &image.to_levels(),
+            image.width as usize,
+            image.height as usize,
+            &DetectParams::default(),
+        );
+        let (matches, _) = single_shot::decode(&found, &xpoint, Some(&at));
+        let single = single_shot::reconstruct(&matches, &rec);
+        let (single_mean, single_good) = summary(&depth_errors(&moving.at(0.0), &single));
+        tracing::info!(speed, gray_mean, single_mean, "motion");
+        rows.push(MotionRow {
+            speed_mm_s: speed,
+            gray_travel_mm: speed * span,
+            gray_points: gray.len(),
+            gray_mean_abs_mm: gray_mean,
+            gray_within_1mm: gray_good,
+            single_points: single.len(),
+            single_mean_abs_mm: single_mean,
+            single_within_1mm: single_good,
+        });
+    }
+    pb.finish_and_clear();
+    Ok(Motion {
+        fps,
+        exposure_ms,
+        gray_frames: frames,
+        direction: [dir.x, dir.y, dir.z],
+        rows,
+    })
+}
+
+/// Print the motion experiment as a table.
+pub fn print_motion(m: &Motion) {
+    println!(
+        "{} Gray-code frames at {} fps ({} ms exposure) against one single-shot frame; motion along ({:.2}, {:.2}, {:.2})",
+        m.gray_frames, m.fps, m.exposure_ms, m.direction[0], m.direction[1], m.direction[2]
+    );
+    println!(
+        "{:>8} {:>9} | {:>8} {:>10} {:>9} | {:>8} {:>10} {:>9}",
+        "mm/s", "travel", "gray pts", "mean |e|", "<= 1 mm", "ss pts", "mean |e|", "<= 1 mm"
+    );
+    for r in &m.rows {
+        println!(
+            "{:>8.1} {:>7.1}mm | {:>8} {:>8.3}mm {:>9} | {:>8} {:>8.3}mm {:>9}",
+            r.speed_mm_s,
+            r.gray_travel_mm,
+            r.gray_points,
+            r.gray_mean_abs_mm,
+            r.gray_within_1mm,
+            r.single_points,
+            r.single_mean_abs_mm,
+            r.single_within_1mm
+        );
+    }
+}

@@ -56,6 +56,8 @@ struct Shared {
     source: Source,
     layout: CodeLayout,
     seed: u64,
+    /// When the pair was opened: the clock of a moving scene.
+    opened: std::time::Instant,
 }
 
 impl Shared {
@@ -78,8 +80,9 @@ pub struct MockProjector {
     camera_id: String,
 }
 
-/// A pair whose camera renders `sim`'s scene lit by whatever the projector shows. `seed`
-/// varies the noise between pairs and scans.
+/// A pair whose camera renders `sim`'s scene lit by whatever the projector shows; a scene
+/// with moving objects is rendered where they are at each trigger (seconds since the pair
+/// opened). `seed` varies the noise between pairs and scans.
 pub fn simulated_pair(
     sim: Arc<Simulator>,
     id: &str,
@@ -132,6 +135,7 @@ fn pair(
         source,
         layout,
         seed,
+        opened: std::time::Instant::now(),
     });
     let camera = MockCamera {
         shared: shared.clone(),
@@ -237,13 +241,27 @@ fn expose(shared: &Shared, st: &mut State, camera: &str) -> Result<()> {
     let image = match &shared.source {
         Source::Sim(sim) => {
             let gain = 10f64.powf(st.gain_db / 20.0);
-            sim.frame_with(
-                &shared.layout,
-                slide.pattern,
-                slide.mask.as_deref(),
-                st.exposure_us / NOMINAL_EXPOSURE_US * gain,
-                shared.seed.wrapping_mul(1_000_003).wrapping_add(id),
-            )
+            let exposure = st.exposure_us / NOMINAL_EXPOSURE_US * gain;
+            let seed = shared.seed.wrapping_mul(1_000_003).wrapping_add(id);
+            if sim.scene.moving() {
+                // A moving part is rendered where it is now (seconds since the pair opened).
+                let t = shared.opened.elapsed().as_secs_f64();
+                Simulator::new(sim.scene.at(t)).frame_with(
+                    &shared.layout,
+                    slide.pattern,
+                    slide.mask.as_deref(),
+                    exposure,
+                    seed,
+                )
+            } else {
+                sim.frame_with(
+                    &shared.layout,
+                    slide.pattern,
+                    slide.mask.as_deref(),
+                    exposure,
+                    seed,
+                )
+            }
         }
         Source::Replay(set) => set.frame(slide.pattern).cloned().ok_or_else(|| {
             err(

@@ -32,6 +32,8 @@ struct Outcome {
     points: usize,
     mean_mm: f64,
     far: usize,
+    /// Of those, points flagged as beside a missing neighbour (halved confidence).
+    far_flagged: usize,
     measured: usize,
     mean_px: f64,
 }
@@ -191,6 +193,7 @@ fn run(file: SceneFile, step: [u32; 2], seed: u64) -> Outcome {
 
     // 3D: each reconstructed X-point against the surface point its camera ray truly meets.
     let mut mm = Vec::new();
+    let mut far_flagged = 0;
     let mut asyms: Vec<f64> = Vec::new();
     for m in &matches {
         let (fx, fy) = (m.x.floor() as usize, m.y.floor() as usize);
@@ -228,6 +231,9 @@ fn run(file: SceneFile, step: [u32; 2], seed: u64) -> Outcome {
         }
         mm.push(e);
         asyms.push(m.asymmetry);
+        if e > 2.0 && m.sides != 0b1111 {
+            far_flagged += 1;
+        }
     }
     if std::env::var("RIS_DEBUG").is_ok() {
         asyms.sort_by(f64::total_cmp);
@@ -318,6 +324,7 @@ fn run(file: SceneFile, step: [u32; 2], seed: u64) -> Outcome {
         points: cloud.len(),
         mean_mm: mm.iter().sum::<f64>() / mm.len().max(1) as f64,
         far: mm.iter().filter(|e| **e > 2.0).count(),
+        far_flagged,
         measured: mm.len(),
     }
 }
@@ -391,8 +398,16 @@ fn decoded_x_points_are_the_primitives_that_light_them() {
             o.points,
             o.decoded
         );
-        // The bound is 0.1 %; near the boxes' top edges a few corners still land 2–3 mm
-        // off (not yet understood), so this asserts what is reached today.
+        // The bound is 0.1 %; beside shadows and the boxes' edges a few corners land
+        // 2–3 mm off: the shadow cuts the outer part of their lobes, and what is left is still
+        // point-symmetric (a strip), about a centre up to a pixel from the corner. This asserts
+        // what is reached today, and that most of them carry the boundary flag.
+        assert!(
+            2 * o.far_flagged >= o.far,
+            "case {case}: {} of {} beyond 2 mm flagged",
+            o.far_flagged,
+            o.far
+        );
         assert!(
             (o.far as f64) <= 0.008 * o.measured as f64,
             "case {case}: {} of {} beyond 2 mm",

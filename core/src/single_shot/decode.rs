@@ -30,6 +30,10 @@ pub struct Correspondence {
     pub from_codeword: bool,
     /// The detection's asymmetry (see [`Detection::asymmetry`]).
     pub asymmetry: f64,
+    /// Which of its four grid neighbours (left, right, up, down) were placed where the grid
+    /// says: bits 0–3. A primitive with one missing may be cut by the shadow or edge that hid
+    /// the neighbour.
+    pub sides: u8,
 }
 
 /// What the decoder found, for reports.
@@ -252,7 +256,19 @@ pub fn decode(
         .filter_map(|(k, p)| {
             let (i, j) = (*p)?;
             let idx = j * cols + i;
+            let mut sides = 0u8;
+            for (bit, c) in [3usize, 5, 1, 7].into_iter().enumerate() {
+                let (a, b) = OFFSETS[c];
+                let want = (
+                    (i as i64 + i64::from(a)) as usize,
+                    (j as i64 + i64::from(b)) as usize,
+                );
+                if neigh[k][c].and_then(|m| placed[m]) == Some(want) {
+                    sides |= 1 << bit;
+                }
+            }
             Some(Correspondence {
+                sides,
                 x: detections[k].x,
                 y: detections[k].y,
                 primitive: idx,

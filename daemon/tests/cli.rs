@@ -1522,3 +1522,52 @@ fn convert_takes_a_cloud_through_e57_and_back() {
         stderr(&o)
     );
 }
+
+#[test]
+fn omni_analyse_prints_the_error_of_the_seeds_prototype() {
+    let seed = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/omni/seed.toml");
+    let o = ris(&[
+        "omni",
+        "--sensor",
+        s(&seed),
+        "--analyse",
+        "--ranges",
+        "2500,4000",
+        "--heights=-1500,300,300",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    let rows = v.as_array().expect("rows");
+    assert_eq!(rows.len(), 14, "two ranges of seven heights");
+    let level = rows
+        .iter()
+        .find(|r| r["range_mm"] == 2500.0 && r["height_mm"] == 0.0)
+        .expect("the level point at 2.5 m");
+    // The seed's 160 mm for a one-pixel error at 2.5 m with 640x480.
+    let e = level["depth_error_camera_mm"].as_f64().expect("error");
+    assert!((120.0..220.0).contains(&e), "{level}");
+    let table = ris(&["omni", "--sensor", s(&seed), "--analyse"]);
+    assert!(table.status.success(), "{}", stderr(&table));
+    assert!(String::from_utf8_lossy(&table.stdout).contains("mm/px"));
+    // A file of another kind and a bad height range are refused by name.
+    let demo = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenes/demo.toml");
+    let bad = ris(&["omni", "--sensor", s(&demo), "--analyse"]);
+    assert!(
+        !bad.status.success() && stderr(&bad).contains("demo.toml"),
+        "{}",
+        stderr(&bad)
+    );
+    let bad = ris(&[
+        "omni",
+        "--sensor",
+        s(&seed),
+        "--analyse",
+        "--heights=0,100,-5",
+    ]);
+    assert!(
+        !bad.status.success() && stderr(&bad).contains("--heights"),
+        "{}",
+        stderr(&bad)
+    );
+}

@@ -1,10 +1,12 @@
 //! The omnidirectional sensor (Ch. 6, SPEC §13): a camera and a projector, each a pinhole behind
 //! a hyperbolic mirror, seeing a whole room around a robot in one shot.
 
+pub mod analysis;
 pub mod file;
 pub mod mirror;
 pub mod rings;
 
+pub use analysis::{analyse, ErrorPoint};
 pub use file::{OmniFile, OmniSensor};
 pub use mirror::{Mirror, MirrorUnit, Ray};
 pub use rings::RingPattern;

@@ -414,6 +414,26 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// The omnidirectional sensor (SPEC §13). `--analyse`: its resolution and depth error
+    /// (Sec. 6.3) for wall points at each range and height: wall covered by one camera and one
+    /// projector pixel, and how far a point moves for a one-pixel error of either.
+    Omni {
+        /// Omnidirectional sensor file (TOML, `kind = "omni"`).
+        #[arg(long)]
+        sensor: PathBuf,
+        /// Print the error analysis (the only action this build has for omni sensors).
+        #[arg(long, required = true)]
+        analyse: bool,
+        /// Ranges of the walls from the sensor's axis, mm.
+        #[arg(long, value_delimiter = ',', default_value = "2000,2500,3000,4000")]
+        ranges: Vec<f64>,
+        /// Heights FROM,TO,STEP in the sensor frame, mm.
+        #[arg(long, default_value = "-1500,300,300")]
+        heights: String,
+        /// JSON on stdout instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
     /// Stream single-shot clouds from a running risd: start the stream, show frames per
     /// second, points and latency per sensor live, stop it, and keep each sensor's last cloud
     /// (SENSOR.ply, cell frame) and fusion picture (SENSOR.png) in OUT.
@@ -433,7 +453,7 @@ enum Command {
         /// Sensors to stream (repeat; default all).
         #[arg(long = "sensor")]
         sensors: Vec<String>,
-        /// Frames per second asked of each pair (default: the cell's [single_shot] rate_hz).
+        /// Frames per second asked of each pair (default: the rate_hz of the cell's single_shot section).
         #[arg(long)]
         rate: Option<f64>,
         /// Stop once every sensor delivered this many clouds.
@@ -801,6 +821,21 @@ fn main() -> Result<()> {
             commands::simulate::run(&scene, &out)?;
             if let Some(picture) = show {
                 commands::simulate::show(&scene, &picture, &out)?;
+            }
+        }
+        Command::Omni {
+            sensor,
+            analyse: _,
+            ranges,
+            heights,
+            json,
+        } => {
+            let heights = commands::omni::heights(&heights)?;
+            let points = commands::omni::analyse_file(&sensor, &ranges, &heights)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&points)?);
+            } else {
+                commands::omni::print(&points);
             }
         }
         Command::Stream {

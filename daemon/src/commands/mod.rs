@@ -8,6 +8,7 @@ pub mod demo;
 pub mod experiment;
 pub mod inspect;
 pub mod merge;
+pub mod omni;
 pub mod patterns;
 pub mod precision;
 pub mod project;

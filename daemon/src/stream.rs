@@ -124,6 +124,8 @@ pub struct SensorCounts {
     pub frames: u64,
     /// Frames replaced before they were computed.
     pub dropped: u64,
+    /// Frames the camera did not deliver in time (the stream goes on; three in a row end it).
+    pub missed: u64,
     /// Clouds published.
     pub published: u64,
     /// Points of the last cloud.
@@ -499,6 +501,7 @@ fn stream<J>(
         });
         let ended = (|| -> Result<StreamEnd<J>> {
             let mut numbers = vec![0u64; chosen.len()];
+            let mut misses = vec![0u32; chosen.len()];
             let mut last_ns = vec![0u64; chosen.len()];
             loop {
                 let round = Instant::now();
@@ -527,11 +530,30 @@ fn stream<J>(
                         if p.group != *g {
                             continue;
                         }
-                        let frame = grab(p).map_err(|e| {
-                            let e = e.context(format!("sensor {}: streaming", p.name));
-                            p.note_failure(&e);
-                            e
-                        })?;
+                        let frame = match grab(p) {
+                            Ok(f) => {
+                                misses[k] = 0;
+                                f
+                            }
+                            Err(e) => {
+                                let e = e.context(format!("sensor {}: streaming", p.name));
+                                p.note_failure(&e);
+                                let lost = p.state != crate::pair::DriverState::Connected;
+                                misses[k] += 1;
+                                control.count(generation, &p.name, |c| c.missed += 1);
+                                // A lost camera ends the stream at once (risd reopens it between
+                                // jobs); a frame that did not come is skipped, three in a row end
+                                // the stream.
+                                if lost || misses[k] >= MAX_MISSES {
+                                    return Err(e.context(format!(
+                                        "{} frame(s) in a row not delivered",
+                                        misses[k]
+                                    )));
+                                }
+                                tracing::warn!(sensor = %p.name, error = %format!("{e:#}"), "stream frame missed");
+                                continue;
+                            }
+                        };
                         let arrived = Instant::now();
                         let unix = SystemTime::now()
                             .duration_since(SystemTime::UNIX_EPOCH)
@@ -567,6 +589,9 @@ fn stream<J>(
         ended
     })
 }
+
+/// Frames in a row a pair may fail to deliver before its stream ends.
+const MAX_MISSES: u32 = 3;
 
 /// Trigger `p`'s camera once and wait for the frame.
 fn grab(p: &mut crate::pair::Pair) -> Result<GrayImage> {

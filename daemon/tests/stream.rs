@@ -361,6 +361,58 @@ fn risd_streams_single_shot_clouds_and_answers_pixel_queries() {
         matches!(r.first(), Some(Ok(t)) if t.contains("stopped")),
         "{r:?}"
     );
+
+    // A stream stopped under a running `ris stream` ends it with the reason, not a hang.
+    let spawned = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .expect("clock")
+        .as_nanos() as u64;
+    let mut watcher = Command::new(env!("CARGO_BIN_EXE_ris"))
+        .args([
+            "stream",
+            "--connect",
+            &endpoint,
+            "--sensor",
+            "s1",
+            "--seconds",
+            "300",
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("ris stream");
+    let t = Instant::now();
+    let mut seen = 0;
+    while seen < 2 {
+        assert!(
+            t.elapsed() < Duration::from_secs(60),
+            "the watched stream did not start"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+        seen += rx
+            .try_iter()
+            .filter(|s| s.1 == "cloud" && s.2["timestamp_ns"].as_u64() > Some(spawned))
+            .count();
+    }
+    let r = ask(&session, "ris/mock/stream", Some(r#"{"action": "stop"}"#));
+    assert!(matches!(r.first(), Some(Ok(_))), "{r:?}");
+    let t = Instant::now();
+    let status = loop {
+        if let Some(status) = watcher.try_wait().expect("wait") {
+            break status;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(20),
+            "ris stream did not notice the stop"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let o = watcher.wait_with_output().expect("output");
+    assert!(
+        !status.success() && String::from_utf8_lossy(&o.stderr).contains("stopped"),
+        "{status:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     drop(session);
     let (status, log) = risd.terminate();
     assert!(status.success(), "risd exit {status:?}: {log:#?}");

@@ -183,6 +183,7 @@ async fn stream(args: &StreamArgs) -> Result<BTreeMap<String, Received>> {
     let t0 = Instant::now();
     let limit = args.seconds.map(Duration::from_secs_f64);
     let mut shown = Instant::now();
+    let mut last_frame = Instant::now();
     let result = loop {
         if limit.is_some_and(|l| t0.elapsed() >= l) {
             break Ok(());
@@ -192,14 +193,36 @@ async fn stream(args: &StreamArgs) -> Result<BTreeMap<String, Received>> {
                 break Ok(());
             }
         }
-        let wait = limit.map_or(Duration::from_secs(30), |l| {
-            l.saturating_sub(t0.elapsed()).min(Duration::from_secs(30))
+        let wait = limit.map_or(Duration::from_secs(2), |l| {
+            l.saturating_sub(t0.elapsed()).min(Duration::from_secs(2))
         });
         let sample = match tokio::time::timeout(wait, sub.recv_async()).await {
-            Ok(Ok(s)) => s,
+            Ok(Ok(s)) => {
+                last_frame = Instant::now();
+                s
+            }
             Ok(Err(e)) => break Err(anyhow!("the subscription ended: {e}")),
-            Err(_) if limit.is_some() => continue,
-            Err(_) => break Err(anyhow!("no stream frame for 30 s")),
+            Err(_) => {
+                // No frame for a while: ask the daemon how the stream is.
+                if let Ok(st) = ask(&session, &key, serde_json::json!({"action": "status"})).await {
+                    match st["state"].as_str() {
+                        Some("failed") => {
+                            break Err(anyhow!(
+                                "the stream failed: {}",
+                                st["error"].as_str().unwrap_or("no reason given")
+                            ))
+                        }
+                        Some("stopped") => {
+                            break Err(anyhow!("the stream was stopped (by another client?)"))
+                        }
+                        _ => {}
+                    }
+                }
+                if last_frame.elapsed() > Duration::from_secs(30) {
+                    break Err(anyhow!("no stream frame for 30 s"));
+                }
+                continue;
+            }
         };
         let parts: Vec<&str> = sample.key_expr().as_str().split('/').collect();
         let (Some(sensor), Some(what)) = (parts.get(3), parts.get(4)) else {

@@ -4,9 +4,11 @@
 pub mod analysis;
 pub mod file;
 pub mod mirror;
+pub mod render;
 pub mod rings;
 
 pub use analysis::{analyse, ErrorPoint};
 pub use file::{OmniFile, OmniSensor};
 pub use mirror::{Mirror, MirrorUnit, Ray};
+pub use render::{render, Exposure, OmniTruth, Room};
 pub use rings::RingPattern;

@@ -15,7 +15,8 @@ use crate::{Error, Result};
 /// A rectangular room around the sensor (sensor frame, mm, z up) and what stands in it.
 #[derive(Clone, Debug)]
 pub struct Room {
-    /// Walls at x = ±half[0] and y = ±half[1] about `center`.
+    /// Half the room's size along x and y: walls at x = ±`half[0]` and y = ±`half[1]` about
+    /// `center`.
     pub half: [f64; 2],
     /// The room's centre (x, y) in the sensor frame.
     pub center: [f64; 2],
@@ -166,7 +167,7 @@ pub fn render(
             + at(x0, y0 + 1.0) * (1.0 - ax) * ay
             + at(x0 + 1.0, y0 + 1.0) * ax * ay
     };
-    let rows: Vec<(Vec<u8>, Vec<[f32; 3]>, Vec<bool>, Vec<[f32; 2]>)> = (0..h)
+    let rows: Vec<RowOut> = (0..h)
         .into_par_iter()
         .map(|v| {
             let mut row = (
@@ -217,6 +218,9 @@ pub fn render(
     }
     Ok((GrayImage::from_u8(w, h, image), truth))
 }
+
+/// One rendered row: levels, points, lit flags, projector pixels.
+type RowOut = (Vec<u8>, Vec<[f32; 3]>, Vec<bool>, Vec<[f32; 2]>);
 
 /// A standard normal deviate from `seed` and `index` (two rounds of SplitMix64, Box–Muller).
 fn gaussian(seed: u64, index: u64) -> f64 {

@@ -1571,3 +1571,85 @@ fn omni_analyse_prints_the_error_of_the_seeds_prototype() {
         stderr(&bad)
     );
 }
+
+#[test]
+fn simulate_renders_an_omni_room_through_the_mirrors_with_its_truth() {
+    use ris_core::io::npy;
+    let dir = tempfile::tempdir().expect("tmp");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenes/room.toml");
+    let out = dir.path().join("room");
+    let o = ris(&["simulate", "--scene", s(&scene), "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let image = ris_core::image::GrayImage::load(&out.join("image.png")).expect("image.png");
+    assert_eq!((image.width, image.height), (640, 480));
+    let (shape, xyz) = npy::read::<f32>(&out.join("truth/xyz.npy")).expect("xyz");
+    assert_eq!(shape, [480, 640, 3]);
+    let (_, lit) = npy::read::<u8>(&out.join("truth/lit.npy")).expect("lit");
+    let (_, proj) = npy::read::<f32>(&out.join("truth/projector.npy")).expect("projector");
+    let sensor = ris_core::omni::OmniSensor::load(&out.join("sensor.toml")).expect("sensor");
+    let rings: ris_core::omni::RingPattern =
+        ris_core::io::read_toml(&out.join("rings.toml")).expect("rings.toml");
+    // The truth holds: each lit pixel's point projects back to the pixel through the camera
+    // and to its projector pixel through the projector; and the image carries the rings there.
+    let (mut pairs, mut checked) = (Vec::new(), 0);
+    for i in (0..640 * 480).step_by(13) {
+        if lit[i] == 0 {
+            continue;
+        }
+        let p = ris_core::geometry::Vec3::new(
+            f64::from(xyz[3 * i]),
+            f64::from(xyz[3 * i + 1]),
+            f64::from(xyz[3 * i + 2]),
+        );
+        let ((u, v), _) = sensor.camera.project(&p).expect("seen by the camera");
+        assert!((u - (i % 640) as f64).hypot(v - (i / 640) as f64) < 0.01);
+        let ((pu, pv), _) = sensor.projector.project(&p).expect("lit by the projector");
+        assert!((pu - f64::from(proj[2 * i])).hypot(pv - f64::from(proj[2 * i + 1])) < 0.01);
+        pairs.push((
+            rings.value(pu, pv),
+            image.get((i % 640) as u32, (i / 640) as u32) as f64,
+        ));
+        checked += 1;
+    }
+    assert!(checked > 2000, "{checked} lit pixels checked");
+    let n = pairs.len() as f64;
+    let (ma, mb) = (
+        pairs.iter().map(|p| p.0).sum::<f64>() / n,
+        pairs.iter().map(|p| p.1).sum::<f64>() / n,
+    );
+    let cov: f64 = pairs.iter().map(|p| (p.0 - ma) * (p.1 - mb)).sum();
+    let (va, vb): (f64, f64) = (
+        pairs.iter().map(|p| (p.0 - ma).powi(2)).sum(),
+        pairs.iter().map(|p| (p.1 - mb).powi(2)).sum(),
+    );
+    let corr = cov / (va * vb).sqrt();
+    assert!(
+        corr > 0.6,
+        "image against the ring pattern: correlation {corr:.2}"
+    );
+    // A room whose floor is above its ceiling is refused by field.
+    let bad = dir.path().join("bad.toml");
+    let text = std::fs::read_to_string(&scene)
+        .expect("scene")
+        .replace(
+            "sensor = \"../omni/seed.toml\"",
+            &format!(
+                "sensor = {:?}",
+                Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/omni/seed.toml")
+            ),
+        )
+        .replace("floor = -1200.0", "floor = 2000.0");
+    std::fs::write(&bad, text).expect("bad scene");
+    let o = ris(&[
+        "simulate",
+        "--scene",
+        s(&bad),
+        "--out",
+        s(&dir.path().join("bad")),
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("room.floor"),
+        "{}",
+        stderr(&o)
+    );
+}

@@ -6,6 +6,7 @@ pub mod file;
 pub mod mirror;
 pub mod render;
 pub mod rings;
+pub mod scene;
 
 pub use analysis::{analyse, ErrorPoint};
 pub use file::{OmniFile, OmniSensor};

@@ -818,6 +818,10 @@ fn main() -> Result<()> {
             commands::precision::run(&sensor, &captures, &decode.params(), &out, scale)?;
         }
         Command::Simulate { scene, out, show } => {
+            if ris_core::omni::scene::OmniScene::is_room_scene(&scene) {
+                commands::simulate::omni(&scene, &out, show.as_deref())?;
+                return Ok(());
+            }
             commands::simulate::run(&scene, &out)?;
             if let Some(picture) = show {
                 commands::simulate::show(&scene, &picture, &out)?;

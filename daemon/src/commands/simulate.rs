@@ -19,6 +19,63 @@ pub enum Simulated {
     Session(ris_core::sim::SessionOutput),
 }
 
+/// Render an omnidirectional room scene (a file with `[room]`) into `out`: the camera's view
+/// of the ring pattern (`image.png`, with `rings.png` and `rings.toml`) or of `show`
+/// (`shown.png`), the sensor file (`sensor.toml`) and the truth (`truth/`).
+pub fn omni(scene: &Path, out: &Path, show: Option<&Path>) -> Result<()> {
+    use ris_core::omni::scene::{write_truth, OmniScene};
+    let s = OmniScene::load(scene).with_context(|| format!("reading scene {}", scene.display()))?;
+    let lens = &s.sensor.projector.lens;
+    let (pw, ph) = (lens.width, lens.height);
+    let (picture, name) = match show {
+        Some(path) => {
+            let img =
+                GrayImage::load(path).with_context(|| format!("reading {}", path.display()))?;
+            let Pixels::U8(px) = &img.pixels else {
+                anyhow::bail!("{}: a projector picture is 8-bit grey", path.display());
+            };
+            if (img.width, img.height) != (pw, ph) {
+                anyhow::bail!(
+                    "{}: the picture is {}x{}, the sensor's projector {pw}x{ph}",
+                    path.display(),
+                    img.width,
+                    img.height
+                );
+            }
+            (px.clone(), "shown.png")
+        }
+        None => (s.rings()?.render(), "image.png"),
+    };
+    let sensor_text = std::fs::read(&s.sensor_path)
+        .with_context(|| format!("reading {}", s.sensor_path.display()))?;
+    let pb = progress::spinner("rendering through the mirrors");
+    let (image, truth) = s.render(&picture)?;
+    pb.finish_and_clear();
+    ris_core::io::write_dir_atomically(out, |dir| {
+        ris_core::io::create_dir(dir)?;
+        if show.is_none() {
+            let rings = s.rings()?;
+            GrayImage::from_u8(pw, ph, rings.render()).save_png(&dir.join("rings.png"))?;
+            ris_core::io::write_toml(&dir.join("rings.toml"), &rings)?;
+        }
+        image.save_png(&dir.join(name))?;
+        ris_core::io::write_atomic(&dir.join("sensor.toml"), &sensor_text)?;
+        write_truth(&truth, image.width, image.height, &dir.join("truth"))
+    })
+    .with_context(|| format!("writing {}", out.display()))?;
+    let seen = truth.xyz.iter().filter(|p| p[0].is_finite()).count();
+    let lit = truth.lit.iter().filter(|l| **l).count();
+    println!(
+        "simulated room {}: {} ({} pixels see the room, {} lit by the projector), sensor and truth in {}",
+        scene.display(),
+        out.join(name).display(),
+        seen,
+        lit,
+        out.display()
+    );
+    Ok(())
+}
+
 /// Render `scene` into `out` with a progress bar.
 pub fn run(scene: &Path, out: &Path) -> Result<Simulated> {
     let s = Scene::load(scene).with_context(|| format!("reading scene {}", scene.display()))?;

@@ -588,39 +588,18 @@ fn acquire_pair(
 ) -> Result<Recorded> {
     let name = p.name.clone();
     match mode {
-        ScanMode::Gray => {
-            let slides: Vec<Slide> = p
-                .layout
-                .sequence(true)
-                .into_iter()
-                .map(Slide::plain)
-                .collect();
-            let acq = acquire(
-                &mut *p.camera,
-                &mut *p.projector,
-                &p.layout,
-                &slides,
-                &p.sequence,
-                &mut |pr| {
-                    state(&ScanState::Acquiring {
-                        sensor: name.clone(),
-                        phase: None,
-                        frame: pr.done,
-                        frames: pr.total,
-                    })
-                },
-            )?;
-            Ok(Recorded {
-                capture: acq.capture,
-                frames: acq.report.shows,
-                phases: Vec::new(),
-                present_s: acq.report.present_s,
-                frame_wait_s: acq.report.frame_wait_s,
-            })
-        }
-        ScanMode::SingleShot => {
-            let single = p.single_shot.clone().map_err(|why| anyhow!(why))?;
-            let slides = [single.slide.clone()];
+        ScanMode::Gray | ScanMode::SingleShot => {
+            // The Gray sequence with inverses, or the pair's one X-point slide.
+            let slides: Vec<Slide> = if mode == ScanMode::Gray {
+                p.layout
+                    .sequence(true)
+                    .into_iter()
+                    .map(Slide::plain)
+                    .collect()
+            } else {
+                let single = p.single_shot.clone().map_err(|why| anyhow!(why))?;
+                vec![single.slide.clone()]
+            };
             let acq = acquire(
                 &mut *p.camera,
                 &mut *p.projector,

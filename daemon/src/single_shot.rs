@@ -5,11 +5,10 @@
 use std::sync::Arc;
 
 use anyhow::{anyhow, Context, Result};
-use ris_core::cloud::PointCloud;
 use ris_core::decode::Decoded;
 use ris_core::image::GrayImage;
 use ris_core::sensor::Reconstructor;
-use ris_core::single_shot::{self, DecodeStats, DetectParams, ReferencePrediction, XPointPattern};
+use ris_core::single_shot::{self, Measured, ReferencePrediction, XPointPattern};
 use ris_drivers::Slide;
 
 use crate::config::SingleShotSection;
@@ -21,20 +20,6 @@ pub struct PairSingleShot {
     /// The slide showing it.
     pub slide: Slide,
     reference: Arc<Decoded>,
-}
-
-/// One frame's result.
-pub struct FrameCloud {
-    /// The cloud in the sensor's frame, organised on the camera's pixels.
-    pub cloud: PointCloud,
-    /// X-points detected.
-    pub detected: usize,
-    /// How decoding went.
-    pub stats: DecodeStats,
-    /// Seconds detecting and decoding the X-points.
-    pub decode_s: f64,
-    /// Seconds reconstructing them.
-    pub reconstruct_s: f64,
 }
 
 impl PairSingleShot {
@@ -62,27 +47,10 @@ impl PairSingleShot {
     }
 
     /// Detect, decode and reconstruct one camera `image` through `rec`.
-    pub fn cloud(&self, image: &GrayImage, rec: &Reconstructor) -> Result<FrameCloud> {
+    pub fn cloud(&self, image: &GrayImage, rec: &Reconstructor) -> Result<Measured> {
         let predict = ReferencePrediction::new(&self.reference)
             .ok_or_else(|| anyhow!("the reference has no row codes"))?;
-        let t = std::time::Instant::now();
-        let levels = image.to_levels();
-        let found = single_shot::detect(
-            &levels,
-            image.width as usize,
-            image.height as usize,
-            &DetectParams::default(),
-        );
         let at = |x: f64, y: f64| predict.at(x, y);
-        let (matches, stats) = single_shot::decode(&found, &self.pattern, Some(&at));
-        let decode_s = t.elapsed().as_secs_f64();
-        let cloud = single_shot::reconstruct(&matches, rec);
-        Ok(FrameCloud {
-            cloud,
-            detected: found.len(),
-            stats,
-            decode_s,
-            reconstruct_s: t.elapsed().as_secs_f64() - decode_s,
-        })
+        Ok(single_shot::measure(image, &self.pattern, Some(&at), rec))
     }
 }

@@ -307,6 +307,8 @@ pub fn point_query(
         "point_mm": [p[0], p[1], p[2]],
         "frame_of_point": "cell",
         "confidence": latest.cloud.confidence.get(i).copied().unwrap_or(1.0),
+        // Outside the sensor's calibrated volume the point is an extrapolation: said, not hidden.
+        "outside_volume": latest.cloud.outside.get(i).copied().unwrap_or(false),
     })
     .to_string())
 }
@@ -627,8 +629,7 @@ fn publish_frame(
     let eye = [centre.x, centre.y, centre.z];
     let range = match out.config.range_mm {
         Some([near, far]) => FusionRange::new(near, far, "[single_shot] range_mm")?,
-        None => FusionRange::covering(&f.cloud, eye)
-            .unwrap_or(FusionRange::new(0.0, 1000.0, "default")?),
+        None => FusionRange::covering(&f.cloud, eye),
     };
     let picture = fuse(&c.image, &f.cloud, eye, range, None)?.png()?;
     let mut cloud = f.cloud;

@@ -221,6 +221,7 @@ fn risd_streams_single_shot_clouds_and_answers_pixel_queries() {
         other => panic!("point query: {other:?}"),
     };
     assert!(v["pixel_distance"].as_f64() < Some(10.0), "{v}");
+    assert_eq!(v["outside_volume"], false, "{v}");
     let pixel = [
         v["pixel"][0].as_f64().expect("x") as u32,
         v["pixel"][1].as_f64().expect("y") as u32,

@@ -37,11 +37,14 @@ impl FusionRange {
     }
 
     /// The range from the 2nd to the 98th percentile of `cloud`'s distances from `eye`, widened
-    /// to round values; `None` for an empty cloud.
-    pub fn covering(cloud: &PointCloud, eye: [f64; 3]) -> Option<FusionRange> {
+    /// to round values; 0 … 1000 mm for an empty cloud.
+    pub fn covering(cloud: &PointCloud, eye: [f64; 3]) -> FusionRange {
         let mut d: Vec<f64> = cloud.points.iter().map(|p| distance(p, eye)).collect();
         if d.is_empty() {
-            return None;
+            return FusionRange {
+                near: 0.0,
+                far: 1000.0,
+            };
         }
         d.sort_by(f64::total_cmp);
         let (lo, hi) = (
@@ -51,7 +54,7 @@ impl FusionRange {
         let step = nice_step(((hi - lo) / 6.0).max(1.0));
         let near = ((lo / step).floor() * step).max(0.0);
         let far = ((hi / step).ceil() * step).max(near + step);
-        Some(FusionRange { near, far })
+        FusionRange { near, far }
     }
 
     /// The colour of distance `d`, mm: red at `near` through yellow, green and cyan to blue at

@@ -12,4 +12,4 @@ pub use decode::{decode, Correspondence, DecodeStats, Predict};
 pub use detect::{detect, DetectParams, Detection};
 pub use fusion::{fuse, Fused, FusionRange};
 pub use pattern::{PatternSection, Primitives, XPointPattern, MIN_STEP};
-pub use reconstruct::{reconstruct, ReferencePrediction};
+pub use reconstruct::{measure, reconstruct, Measured, ReferencePrediction};

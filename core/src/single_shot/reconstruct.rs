@@ -88,3 +88,48 @@ pub fn reconstruct(matches: &[Correspondence], rec: &Reconstructor) -> PointClou
     }
     cloud
 }
+
+/// One camera frame of the pattern, measured: its cloud and how it went.
+#[derive(Clone, Debug)]
+pub struct Measured {
+    /// The cloud (see [`reconstruct`]).
+    pub cloud: PointCloud,
+    /// X-points detected.
+    pub detected: usize,
+    /// Correspondences placed by their own codeword (the rest by a neighbour).
+    pub from_codeword: usize,
+    /// How decoding went.
+    pub stats: super::DecodeStats,
+    /// Seconds detecting and decoding.
+    pub decode_s: f64,
+    /// Seconds reconstructing.
+    pub reconstruct_s: f64,
+}
+
+/// Detect, decode (the repeat chosen by `predict`) and reconstruct one camera `image` of
+/// `pattern` through `rec`.
+pub fn measure(
+    image: &crate::image::GrayImage,
+    pattern: &super::XPointPattern,
+    predict: Option<super::Predict>,
+    rec: &Reconstructor,
+) -> Measured {
+    let t = std::time::Instant::now();
+    let found = super::detect(
+        &image.to_levels(),
+        image.width as usize,
+        image.height as usize,
+        &super::DetectParams::default(),
+    );
+    let (matches, stats) = super::decode(&found, pattern, predict);
+    let decode_s = t.elapsed().as_secs_f64();
+    let cloud = reconstruct(&matches, rec);
+    Measured {
+        cloud,
+        detected: found.len(),
+        from_codeword: matches.iter().filter(|m| m.from_codeword).count(),
+        stats,
+        decode_s,
+        reconstruct_s: t.elapsed().as_secs_f64() - decode_s,
+    }
+}

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use clap::{Parser, Subcommand, ValueEnum};
+use clap::{Args, Parser, Subcommand, ValueEnum};
 use ris_core::calibrate::GaugeParams;
 use ris_core::decode::DecodeParams;
 use ris_core::pattern::CodeLayout;
@@ -90,6 +90,23 @@ enum ExperimentCommand {
         #[arg(long)]
         json: bool,
     },
+}
+
+/// How a client reaches a running risd.
+#[derive(Args)]
+struct DaemonArgs {
+    /// Zenoh endpoint of the daemon.
+    #[arg(long, default_value = "tcp/127.0.0.1:7447")]
+    connect: Vec<String>,
+    /// Cell name.
+    #[arg(long, default_value = "mock")]
+    cell: String,
+    /// Zenoh user, for a cell with [zenoh.access].
+    #[arg(long, requires = "password_file")]
+    user: Option<String>,
+    /// File whose first line is the user's password.
+    #[arg(long, requires = "user")]
+    password_file: Option<PathBuf>,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -380,18 +397,8 @@ enum Command {
     /// into OUT/SCAN_ID/ (exit status 3 when the inspected part fails, 4 when it was not
     /// measured)
     Scan {
-        /// Zenoh endpoint of the daemon.
-        #[arg(long, default_value = "tcp/127.0.0.1:7447")]
-        connect: Vec<String>,
-        /// Cell name.
-        #[arg(long, default_value = "mock")]
-        cell: String,
-        /// Zenoh user, for a cell with [zenoh.access].
-        #[arg(long, requires = "password_file")]
-        user: Option<String>,
-        /// File whose first line is the user's password.
-        #[arg(long, requires = "user")]
-        password_file: Option<PathBuf>,
+        #[command(flatten)]
+        daemon: DaemonArgs,
         /// Scan mode (gray, adaptive, single-shot); the daemon's default when omitted.
         #[arg(long)]
         mode: Option<String>,
@@ -438,18 +445,8 @@ enum Command {
     /// second, points and latency per sensor live, stop it, and keep each sensor's last cloud
     /// (SENSOR.ply, cell frame) and fusion picture (SENSOR.png) in OUT.
     Stream {
-        /// Zenoh endpoint of the daemon.
-        #[arg(long, default_value = "tcp/127.0.0.1:7447")]
-        connect: Vec<String>,
-        /// Cell name.
-        #[arg(long, default_value = "mock")]
-        cell: String,
-        /// Zenoh user, for a cell with [zenoh.access].
-        #[arg(long, requires = "password_file")]
-        user: Option<String>,
-        /// File whose first line is the user's password.
-        #[arg(long, requires = "user")]
-        password_file: Option<PathBuf>,
+        #[command(flatten)]
+        daemon: DaemonArgs,
         /// Sensors to stream (repeat; default all).
         #[arg(long = "sensor")]
         sensors: Vec<String>,
@@ -843,10 +840,13 @@ fn main() -> Result<()> {
             }
         }
         Command::Stream {
-            connect,
-            cell,
-            user,
-            password_file,
+            daemon:
+                DaemonArgs {
+                    connect,
+                    cell,
+                    user,
+                    password_file,
+                },
             sensors,
             rate,
             frames,
@@ -867,10 +867,13 @@ fn main() -> Result<()> {
             })?;
         }
         Command::Scan {
-            connect,
-            cell,
-            user,
-            password_file,
+            daemon:
+                DaemonArgs {
+                    connect,
+                    cell,
+                    user,
+                    password_file,
+                },
             mode,
             sensors,
             part,

@@ -262,7 +262,7 @@ pub fn motion(
     use ris_core::sim::motion::{
         capture_at_frame_times, depth_errors, frame_at, sequence_span, Timing,
     };
-    use ris_core::single_shot::{self, DetectParams, ReferencePrediction, XPointPattern};
+    use ris_core::single_shot::{self, ReferencePrediction, XPointPattern};
 
     anyhow::ensure!(
         fps.is_finite() && fps > 0.0,
@@ -333,14 +333,7 @@ pub fn motion(
             9,
         );
         pb.inc(1);
-        let found = single_shot::detect(
-            &image.to_levels(),
-            image.width as usize,
-            image.height as usize,
-            &DetectParams::default(),
-        );
-        let (matches, _) = single_shot::decode(&found, &xpoint, Some(&at));
-        let single = single_shot::reconstruct(&matches, &rec);
+        let single = single_shot::measure(&image, &xpoint, Some(&at), &rec).cloud;
         let (single_mean, single_good) = summary(&depth_errors(&moving.at(0.0), &single));
         tracing::info!(speed, gray_mean, single_mean, "motion");
         rows.push(MotionRow {

@@ -2,6 +2,7 @@
 
 pub mod calibrate;
 pub mod camera;
+pub mod client;
 pub mod convert;
 pub mod decode;
 pub mod demo;

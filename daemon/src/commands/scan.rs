@@ -120,58 +120,20 @@ fn classify(key: &str, payload: Vec<u8>) -> Option<(String, Item)> {
 }
 
 async fn scan(args: &ScanArgs) -> Result<Arrived> {
-    let password = match &args.credentials {
-        Some((user, file)) => {
-            let text = std::fs::read_to_string(file)
-                .with_context(|| format!("--password-file: reading {}", file.display()))?;
-            let password = text.lines().next().unwrap_or_default().to_string();
-            Some((user.clone(), password))
-        }
-        None => None,
-    };
-    let config = crate::service::client_config(
-        &args.connect,
-        password.as_ref().map(|(u, p)| (u.as_str(), p.as_str())),
-    )?;
-    let session = zenoh::open(config)
-        .await
-        .map_err(|e| anyhow!("connecting to {:?}: {e}", args.connect))?;
+    let session = super::client::open(&args.connect, args.credentials.as_ref()).await?;
     let cell = &args.cell;
     // Subscribe before asking, so that no publication of the scan is missed.
     let sub = session
         .declare_subscriber(format!("ris/{cell}/scans/**"))
         .await
         .map_err(|e| anyhow!("subscribing to ris/{cell}/scans/**: {e}"))?;
-    let replies = session
-        .get(format!("ris/{cell}/scan"))
-        .payload(request(args).to_string())
-        .timeout(Duration::from_secs(10))
+    let v = super::client::ask(&session, &format!("ris/{cell}/scan"), &request(args))
         .await
-        .map_err(|e| anyhow!("asking ris/{cell}/scan: {e}"))?;
-    let reply = replies.recv_async().await.map_err(|_| {
-        anyhow!(
-            "no reply from ris/{cell}/scan: is risd for cell {cell:?} reachable at {:?}?",
-            args.connect
-        )
-    })?;
-    let scan_id = match reply.result() {
-        Ok(sample) => {
-            let v: Value = serde_json::from_slice(&sample.payload().to_bytes())
-                .context("the daemon's reply is not JSON")?;
-            v["scan_id"]
-                .as_str()
-                .map(str::to_string)
-                .ok_or_else(|| anyhow!("the daemon's reply has no scan_id: {v}"))?
-        }
-        Err(err) => {
-            let text = String::from_utf8_lossy(&err.payload().to_bytes()).into_owned();
-            let reason = serde_json::from_str::<Value>(&text)
-                .ok()
-                .and_then(|v| v["error"].as_str().map(str::to_string))
-                .unwrap_or(text);
-            bail!("risd refused the scan: {reason}");
-        }
-    };
+        .with_context(|| format!("asking cell {cell:?} at {:?} for a scan", args.connect))?;
+    let scan_id = v["scan_id"]
+        .as_str()
+        .map(str::to_string)
+        .ok_or_else(|| anyhow!("the daemon's reply has no scan_id: {v}"))?;
     tracing::info!(%scan_id, "scan accepted");
     let pb = crate::progress::bar(0, "queued");
     let mut frames: BTreeMap<String, (u64, u64)> = BTreeMap::new();

@@ -10,7 +10,7 @@ use ris_core::cloud::PointCloud;
 use ris_core::decode::{decode, DecodeParams};
 use ris_core::image::GrayImage;
 use ris_core::sensor::{ModelChoice, Reconstructor, Sensor};
-use ris_core::single_shot::{self, DetectParams, FusionRange, ReferencePrediction, XPointPattern};
+use ris_core::single_shot::{self, FusionRange, ReferencePrediction, XPointPattern};
 
 /// Decode `image` (the X-point pattern of `pattern` seen by `sensor`'s camera) and write the
 /// cloud to `out`; returns it. The sensor's Gray-code reference recording predicts where each
@@ -71,30 +71,18 @@ pub fn run(
             s.camera.height
         );
     }
-    let t = Instant::now();
-    let levels = img.to_levels();
-    let found = single_shot::detect(
-        &levels,
-        img.width as usize,
-        img.height as usize,
-        &DetectParams::default(),
-    );
     let at = |x: f64, y: f64| predict.at(x, y);
-    let (matches, stats) = single_shot::decode(&found, &pattern, Some(&at));
-    let cloud = single_shot::reconstruct(&matches, &rec);
-    let took = t.elapsed();
-    tracing::info!(?stats, "single-shot decoding");
+    let m = single_shot::measure(&img, &pattern, Some(&at), &rec);
+    let cloud = &m.cloud;
+    tracing::info!(stats = ?m.stats, "single-shot decoding");
     cloud
         .write_ply(out)
         .with_context(|| format!("writing {}", out.display()))?;
     if let Some((path, range)) = fused {
         let c = rec.camera().center();
         let eye = [c.x, c.y, c.z];
-        let range = match range.or_else(|| FusionRange::covering(&cloud, eye)) {
-            Some(r) => r,
-            None => FusionRange::new(0.0, 1000.0, "--range")?,
-        };
-        let picture = single_shot::fuse(&img, &cloud, eye, range, None)
+        let range = range.unwrap_or_else(|| FusionRange::covering(cloud, eye));
+        let picture = single_shot::fuse(&img, cloud, eye, range, None)
             .with_context(|| format!("fusing {}", image.display()))?;
         picture
             .save(path)
@@ -111,14 +99,14 @@ pub fn run(
     println!(
         "{} points from {} X-points ({} by their codeword, {} from a neighbour; {} codewords read, {} matched); prepare {:.0} ms, decode + reconstruct {:.0} ms; wrote {}",
         cloud.len(),
-        found.len(),
-        matches.iter().filter(|m| m.from_codeword).count(),
-        stats.propagated,
-        stats.windows,
-        stats.matched,
+        m.detected,
+        m.from_codeword,
+        m.stats.propagated,
+        m.stats.windows,
+        m.stats.matched,
         prepare.as_secs_f64() * 1e3,
-        took.as_secs_f64() * 1e3,
+        (m.decode_s + m.reconstruct_s) * 1e3,
         out.display()
     );
-    Ok(cloud)
+    Ok(m.cloud)
 }

@@ -6,6 +6,8 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant, SystemTime};
 
 use anyhow::{anyhow, bail, Context, Result};
+
+use super::client::ask;
 use serde_json::Value;
 
 /// What to stream and for how long.
@@ -108,50 +110,8 @@ pub fn run(args: &StreamArgs) -> Result<BTreeMap<String, Received>> {
     Ok(got)
 }
 
-async fn ask(session: &zenoh::Session, key: &str, body: Value) -> Result<Value> {
-    let replies = session
-        .get(key)
-        .payload(body.to_string())
-        .timeout(Duration::from_secs(10))
-        .await
-        .map_err(|e| anyhow!("asking {key}: {e}"))?;
-    let reply = replies
-        .recv_async()
-        .await
-        .map_err(|_| anyhow!("no reply from {key}: is risd for this cell reachable?"))?;
-    match reply.result() {
-        Ok(sample) => serde_json::from_slice(&sample.payload().to_bytes())
-            .context("the daemon's reply is not JSON"),
-        Err(err) => {
-            let text = String::from_utf8_lossy(&err.payload().to_bytes()).into_owned();
-            let reason = serde_json::from_str::<Value>(&text)
-                .ok()
-                .and_then(|v| v["error"].as_str().map(str::to_string))
-                .unwrap_or(text);
-            bail!("risd refused: {reason}")
-        }
-    }
-}
-
 async fn stream(args: &StreamArgs) -> Result<BTreeMap<String, Received>> {
-    let password = match &args.credentials {
-        Some((user, file)) => {
-            let text = std::fs::read_to_string(file)
-                .with_context(|| format!("--password-file: reading {}", file.display()))?;
-            Some((
-                user.clone(),
-                text.lines().next().unwrap_or_default().to_string(),
-            ))
-        }
-        None => None,
-    };
-    let config = crate::service::client_config(
-        &args.connect,
-        password.as_ref().map(|(u, p)| (u.as_str(), p.as_str())),
-    )?;
-    let session = zenoh::open(config)
-        .await
-        .map_err(|e| anyhow!("connecting to {:?}: {e}", args.connect))?;
+    let session = super::client::open(&args.connect, args.credentials.as_ref()).await?;
     let cell = &args.cell;
     let sub = session
         .declare_subscriber(format!("ris/{cell}/stream/*/*"))
@@ -165,7 +125,7 @@ async fn stream(args: &StreamArgs) -> Result<BTreeMap<String, Received>> {
         request["rate"] = r.into();
     }
     let key = crate::stream::stream_key(cell);
-    let started = ask(&session, &key, request).await?;
+    let started = ask(&session, &key, &request).await?;
     let sensors: Vec<String> = started["sensors"]
         .as_array()
         .map(|a| {
@@ -204,7 +164,8 @@ async fn stream(args: &StreamArgs) -> Result<BTreeMap<String, Received>> {
             Ok(Err(e)) => break Err(anyhow!("the subscription ended: {e}")),
             Err(_) => {
                 // No frame for a while: ask the daemon how the stream is.
-                if let Ok(st) = ask(&session, &key, serde_json::json!({"action": "status"})).await {
+                if let Ok(st) = ask(&session, &key, &serde_json::json!({"action": "status"})).await
+                {
                     match st["state"].as_str() {
                         Some("failed") => {
                             break Err(anyhow!(
@@ -286,7 +247,7 @@ async fn stream(args: &StreamArgs) -> Result<BTreeMap<String, Received>> {
     };
     pb.finish_and_clear();
     if !args.keep_running {
-        if let Err(e) = ask(&session, &key, serde_json::json!({"action": "stop"})).await {
+        if let Err(e) = ask(&session, &key, &serde_json::json!({"action": "stop"})).await {
             tracing::warn!(error = %format!("{e:#}"), "stopping the stream");
         }
     }

@@ -1653,3 +1653,134 @@ fn simulate_renders_an_omni_room_through_the_mirrors_with_its_truth() {
         stderr(&o)
     );
 }
+
+/// The distance a fused colour stands for under `near..far`, or `None` for a grey pixel (the
+/// hue runs red 0° at `near` to blue 240° at `far`; shading scales the colour, not its hue).
+fn distance_of_colour(c: [u8; 3], near: f64, far: f64) -> Option<f64> {
+    let [r, g, b] = c.map(f64::from);
+    let (max, min) = (r.max(g).max(b), r.min(g).min(b));
+    if max < 30.0 || (max - min) / max < 0.5 {
+        return None;
+    }
+    let d = max - min;
+    let hue = if max == r {
+        (60.0 * (g - b) / d).rem_euclid(360.0)
+    } else if max == g {
+        60.0 * ((b - r) / d + 2.0)
+    } else {
+        60.0 * ((r - g) / d + 4.0)
+    };
+    (hue <= 245.0).then(|| near + (far - near) * hue.min(240.0) / 240.0)
+}
+
+#[test]
+fn omni_decodes_a_rendered_room_into_its_cloud_and_a_panorama_with_corners_at_their_bearing() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let scene_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenes/room.toml");
+    let out = dir.path().join("room");
+    let o = ris(&["simulate", "--scene", s(&scene_path), "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (cloud, pano) = (dir.path().join("room.ply"), dir.path().join("pano.png"));
+    let o = ris(&[
+        "omni",
+        "--sensor",
+        s(&out.join("sensor.toml")),
+        s(&out.join("image.png")),
+        "--pattern",
+        s(&out.join("rings.toml")),
+        "--out",
+        s(&cloud),
+        "--panorama",
+        s(&pano),
+        "--range",
+        "2000,4500",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let summary: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json summary");
+    let n = summary["points"].as_u64().expect("points");
+    assert!(n > 12_000, "{n} points");
+    // Every point against the surface its camera ray meets in the room (the scene's truth).
+    let scene = ris_core::omni::scene::OmniScene::load(&scene_path).expect("scene");
+    let c = ris_core::cloud::PointCloud::read_ply(&cloud).expect("cloud");
+    assert_eq!(c.len() as u64, n);
+    let col = |name: &str| {
+        c.scalars
+            .iter()
+            .find(|x| x.name == name)
+            .unwrap_or_else(|| panic!("{name} per point"))
+            .values
+            .clone()
+    };
+    let (u, v) = (col("u"), col("v"));
+    let mut errors: Vec<f64> = c
+        .points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let ray = scene
+                .sensor
+                .camera
+                .back_project(f64::from(u[i]), f64::from(v[i]))
+                .expect("a pixel on the mirror");
+            let (t, _, _) = scene
+                .room
+                .intersect(&ray.origin, &ray.direction)
+                .expect("room");
+            let truth = ray.origin + ray.direction * t;
+            ((f64::from(p[0]) - truth.x).powi(2)
+                + (f64::from(p[1]) - truth.y).powi(2)
+                + (f64::from(p[2]) - truth.z).powi(2))
+            .sqrt()
+        })
+        .collect();
+    errors.sort_by(f64::total_cmp);
+    let median = errors[errors.len() / 2];
+    let far = errors.iter().filter(|e| **e > 300.0).count() as f64 / errors.len() as f64;
+    assert!(median < 30.0, "median |error| {median:.1} mm");
+    assert!(far < 0.07, "{:.1} % of points > 300 mm off", 100.0 * far);
+    // The panorama: columns are azimuth; the walls are furthest at the room's corners. The
+    // room (6 x 5 m about (200, -300)) has corners at bearings 141.8° and 318.8° clear of the
+    // box and the cylinder.
+    let img = image::open(&pano).expect("panorama").to_rgb8();
+    let width = summary["panorama_width"].as_u64().expect("panorama_width") as u32;
+    assert_eq!(
+        img.width(),
+        width + 120,
+        "the unrolled image and the colour bar"
+    );
+    let distance: Vec<Option<f64>> = (0..width)
+        .map(|x| {
+            let mut d: Vec<f64> = (0..img.height())
+                .filter_map(|y| distance_of_colour(img.get_pixel(x, y).0, 2000.0, 4500.0))
+                .collect();
+            d.sort_by(f64::total_cmp);
+            (d.len() >= 5).then(|| d[d.len() / 2])
+        })
+        .collect();
+    for (cx, cy) in [(-2800.0f64, 2200.0f64), (3200.0, -2800.0)] {
+        let bearing = cy.atan2(cx).to_degrees().rem_euclid(360.0);
+        // The column of greatest distance within 20° of it, smoothed over 1°.
+        let per_degree = f64::from(width) / 360.0;
+        let smooth = |x: i64| {
+            let k = (per_degree / 2.0).ceil() as i64;
+            let vals: Vec<f64> = (x - k..=x + k)
+                .filter_map(|i| distance[i.rem_euclid(i64::from(width)) as usize])
+                .collect();
+            (!vals.is_empty()).then(|| vals.iter().sum::<f64>() / vals.len() as f64)
+        };
+        let centre = (bearing * per_degree) as i64;
+        let span = (20.0 * per_degree) as i64;
+        let best = (centre - span..=centre + span)
+            .filter_map(|x| Some((x, smooth(x)?)))
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .expect("coloured columns near the corner");
+        let found = (best.0 as f64 + 0.5) / per_degree;
+        let off = ((found - bearing + 180.0).rem_euclid(360.0) - 180.0).abs();
+        eprintln!("corner at {bearing:.1}°: panorama {found:.1}°");
+        assert!(
+            off < 2.0,
+            "corner at {bearing:.1}° shows at {found:.1}° in the panorama ({off:.1}° off)"
+        );
+    }
+}

@@ -107,6 +107,12 @@ impl MirrorUnit {
         self.offset.norm() < 1e-12
     }
 
+    /// The pixel that images the mirror's vertex: the centre of the conic image, about which
+    /// the rings and the epipolar lines of a stacked sensor turn.
+    pub fn axis_pixel(&self) -> Option<(f64, f64)> {
+        self.pinhole().project(&Vec3::new(0.0, 0.0, self.mirror.a))
+    }
+
     /// The single viewpoint F1 in the sensor frame.
     pub fn viewpoint(&self) -> Vec3 {
         self.r * Vec3::new(0.0, 0.0, self.mirror.e()) + self.t

@@ -2,14 +2,18 @@
 //! a hyperbolic mirror, seeing a whole room around a robot in one shot.
 
 pub mod analysis;
+pub mod decode;
 pub mod file;
 pub mod mirror;
+pub mod panorama;
 pub mod render;
 pub mod rings;
 pub mod scene;
 
 pub use analysis::{analyse, ErrorPoint};
+pub use decode::{RingDecode, RingDecoder, RingParams, RingPoint};
 pub use file::{OmniFile, OmniSensor};
 pub use mirror::{Mirror, MirrorUnit, Ray};
+pub use panorama::{panorama, Panorama};
 pub use render::{render, Exposure, OmniTruth, Room};
 pub use rings::RingPattern;

@@ -7,6 +7,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::{Error, Result};
 
+/// The golden angle, radians: successive multiples spread evenly around the circle.
+const GOLDEN_ANGLE: f64 = 2.399_963_229_728_653;
+
 /// The radial profile of a ring.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -61,7 +64,8 @@ impl RingPattern {
     /// The default design for a `width × height` projector centred on `center`: rings every
     /// 8 px from a tenth of the inscribed radius to 95 % of it, Gaussian profile of σ = 1.2 px,
     /// full intensity, ring k with k + 3 periods per turn (every ring its own frequency; at
-    /// least 3 so each ring's phase is measurable) and no phase offset.
+    /// least 3 so each ring's phase is measurable), and phases a golden angle apart, so that
+    /// no azimuth finds all rings at their crest together (there, rings would look alike).
     pub fn design(width: u32, height: u32, center: [f64; 2]) -> Result<RingPattern> {
         let inscribed = center[0]
             .min(center[1])
@@ -91,7 +95,7 @@ impl RingPattern {
                     radius: first + step * k as f64,
                     width: 1.2,
                     frequency: k as u32 + 3,
-                    phase: 0.0,
+                    phase: (k as f64 * GOLDEN_ANGLE).rem_euclid(std::f64::consts::TAU),
                     intensity: 1.0,
                 })
                 .collect(),
@@ -142,11 +146,14 @@ mod tests {
         assert_eq!(f.len(), p.ring.len());
         let last = p.ring.last().expect("ring");
         assert!(last.radius + 4.0 * last.width < 383.5);
-        // On a ring the intensity follows its cosine: peak at θ = 0, zero half a period on.
+        // On a ring the intensity follows its cosine: peak where f θ + phase = 0, zero half a
+        // period on.
         let r = &p.ring[4];
         let (cx, cy) = (511.5, 383.5);
-        assert!((p.value(cx + r.radius, cy) - 1.0).abs() < 0.02);
-        let half = std::f64::consts::PI / f64::from(r.frequency);
+        let crest = -r.phase / f64::from(r.frequency);
+        let (u, v) = (cx + r.radius * crest.cos(), cy + r.radius * crest.sin());
+        assert!((p.value(u, v) - 1.0).abs() < 0.02);
+        let half = crest + std::f64::consts::PI / f64::from(r.frequency);
         let (u, v) = (cx + r.radius * half.cos(), cy + r.radius * half.sin());
         assert!(p.value(u, v) < 0.02, "{}", p.value(u, v));
         assert!(RingPattern::design(100, 100, [10.0, 50.0]).is_err());

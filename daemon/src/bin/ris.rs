@@ -421,15 +421,35 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
-    /// The omnidirectional sensor (SPEC §13). `--analyse`: its resolution and depth error
-    /// (Sec. 6.3) for wall points at each range and height: wall covered by one camera and one
-    /// projector pixel, and how far a point moves for a one-pixel error of either.
+    /// The omnidirectional sensor (SPEC §13). With IMAGE: decode the ring pattern in the
+    /// camera's image into the 360° cloud (sensor frame, mm, with `ring` and `azimuth` per
+    /// point) and optionally the panorama with distance colours (azimuth 0…360° left to right,
+    /// counter-clockwise from the sensor's +x seen from above; up at the top). `--analyse`: the
+    /// resolution and depth error (Sec. 6.3) for wall points at each range and height.
     Omni {
         /// Omnidirectional sensor file (TOML, `kind = "omni"`).
         #[arg(long)]
         sensor: PathBuf,
-        /// Print the error analysis (the only action this build has for omni sensors).
-        #[arg(long, required = true)]
+        /// The camera's image of the ring pattern.
+        #[arg(required_unless_present = "analyse")]
+        image: Option<PathBuf>,
+        /// The ring pattern shown (rings.toml; default: the design for the sensor's projector).
+        #[arg(long)]
+        pattern: Option<PathBuf>,
+        /// Where to write the cloud (PLY).
+        #[arg(long, required_unless_present = "analyse")]
+        out: Option<PathBuf>,
+        /// Also write the panorama (PNG) with distance colours.
+        #[arg(long)]
+        panorama: Option<PathBuf>,
+        /// Distances coloured red and blue, mm (NEAR,FAR; default 2000,4000 as the seed).
+        #[arg(long, default_value = "2000,4000")]
+        range: String,
+        /// Nearest and farthest point distance from the camera kept, mm (NEAR,FAR).
+        #[arg(long, default_value = "300,20000")]
+        depth: String,
+        /// Print the error analysis instead of decoding.
+        #[arg(long)]
         analyse: bool,
         /// Ranges of the walls from the sensor's axis, mm.
         #[arg(long, value_delimiter = ',', default_value = "2000,2500,3000,4000")]
@@ -826,10 +846,42 @@ fn main() -> Result<()> {
         }
         Command::Omni {
             sensor,
-            analyse: _,
+            image,
+            pattern,
+            out,
+            panorama,
+            range,
+            depth,
+            analyse: false,
+            json,
+            ..
+        } => {
+            let range = commands::parse_range(&range, "--range")?;
+            let depth = commands::parse_range(&depth, "--depth")?;
+            let (Some(image), Some(out)) = (image, out) else {
+                anyhow::bail!("ris omni: IMAGE and --out are needed to decode (or --analyse)");
+            };
+            let summary = commands::omni::decode_file(
+                &sensor,
+                pattern.as_deref(),
+                &image,
+                &out,
+                panorama.as_deref(),
+                range,
+                [depth.near, depth.far],
+            )?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&summary)?);
+            } else {
+                println!("{}", summary.line());
+            }
+        }
+        Command::Omni {
+            sensor,
             ranges,
             heights,
             json,
+            ..
         } => {
             let heights = commands::omni::heights(&heights)?;
             let points = commands::omni::analyse_file(&sensor, &ranges, &heights)?;

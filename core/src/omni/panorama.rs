@@ -1,0 +1,101 @@
+//! The unwarped panorama (Fig. 6.7) with distance colours fused (Ch. 7.3): the camera's conic
+//! image unrolled about its centre, azimuth 0 … 360° left to right (counter-clockwise seen from
+//! above, from the sensor's +x), and each decoded point coloured by its distance from the
+//! sensor origin, red near to blue far, over the picture; black where the mirror shows nothing.
+
+use std::f64::consts::TAU;
+
+use super::decode::{RingDecode, RingDecoder};
+use super::OmniSensor;
+use crate::cloud::PointCloud;
+use crate::image::GrayImage;
+use crate::single_shot::{fuse, Fused, FusionRange};
+use crate::Result;
+
+/// A panorama and how its pixels map to directions.
+#[derive(Clone, Debug)]
+pub struct Panorama {
+    /// The picture with its colour bar.
+    pub fused: Fused,
+    /// Width of the unrolled image (the colour bar is right of it), pixels: column x looks
+    /// along azimuth 360° · (x + 0.5) / width.
+    pub width: u32,
+    /// Camera image radius of row 0 (pixels from the conic centre); each row is one pixel out.
+    pub rho0: f64,
+    /// Elevation (degrees above the horizontal through the camera's viewpoint) of the top and
+    /// the bottom row.
+    pub elevation_deg: [f64; 2],
+}
+
+/// Unroll `image` and fuse `decoded`'s points over it, coloured by `range`.
+pub fn panorama(
+    sensor: &OmniSensor,
+    decoder: &RingDecoder,
+    image: &GrayImage,
+    decoded: &RingDecode,
+    range: FusionRange,
+) -> Result<Panorama> {
+    let cam = &sensor.camera;
+    let [cx, cy] = decoder.center();
+    let [rho0, outer] = decoder.radial_span();
+    let width = decoder.columns();
+    let height = (outer - rho0).floor() as usize + 1;
+    // Image angle → sensor azimuth is ± the image angle plus an offset for a stacked unit.
+    let azimuth_at = |t: f64| {
+        let rho = 0.5 * (rho0 + outer);
+        cam.back_project(cx + rho * t.cos(), cy + rho * t.sin())
+            .map(|r| r.direction.y.atan2(r.direction.x))
+    };
+    let (a0, a1) = (azimuth_at(0.0), azimuth_at(0.01));
+    let (offset, sign) = match (a0, a1) {
+        (Some(a0), Some(a1)) => (a0, if (a1 - a0).sin() >= 0.0 { 1.0 } else { -1.0 }),
+        _ => (0.0, 1.0),
+    };
+    // Image angle of azimuth phi.
+    let angle = |phi: f64| sign * (phi - offset);
+    let levels = image.to_levels();
+    let (w, h) = (image.width as usize, image.height as usize);
+    let mut pixels = vec![0u8; width * height];
+    for x in 0..width {
+        let t = angle(TAU * (x as f64 + 0.5) / width as f64);
+        for y in 0..height {
+            let rho = rho0 + y as f64;
+            let (u, v) = (cx + rho * t.cos(), cy + rho * t.sin());
+            if u >= 0.0 && v >= 0.0 && u <= (w - 1) as f64 && v <= (h - 1) as f64 {
+                let i = v.round() as usize * w + u.round() as usize;
+                pixels[y * width + x] = levels[i].round().clamp(0.0, 255.0) as u8;
+            }
+        }
+    }
+    let unrolled = GrayImage::from_u8(width as u32, height as u32, pixels);
+    let mut cloud = PointCloud {
+        image: Some([width as u32, height as u32]),
+        ..PointCloud::default()
+    };
+    for p in &decoded.points {
+        let x = (f64::from(p.azimuth).rem_euclid(TAU) / TAU * width as f64).floor() as usize;
+        let rho = (f64::from(p.pixel[0]) - cx).hypot(f64::from(p.pixel[1]) - cy);
+        let y = (rho - rho0).round();
+        if y < 0.0 || y as usize >= height || x >= width {
+            continue;
+        }
+        cloud.points.push(p.point);
+        cloud.confidence.push(1.0);
+        cloud.pixels.push((y as usize * width + x) as u32);
+    }
+    let fused = fuse(&unrolled, &cloud, [0.0, 0.0, 0.0], range, None)?;
+    let elevation = |rho: f64| {
+        cam.back_project(cx + rho, cy).map_or(f64::NAN, |r| {
+            r.direction
+                .z
+                .atan2(r.direction.x.hypot(r.direction.y))
+                .to_degrees()
+        })
+    };
+    Ok(Panorama {
+        fused,
+        width: width as u32,
+        rho0,
+        elevation_deg: [elevation(rho0), elevation(outer)],
+    })
+}

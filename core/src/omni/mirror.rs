@@ -133,7 +133,7 @@ impl MirrorUnit {
     }
 
     /// The pixel that sees sensor-frame point `x`, and the mirror point it is seen at; `None`
-    /// when no mirror point reflects it into the pinhole.
+    /// when no mirror point reflects it into the pinhole (or `x` lies behind the mirror).
     pub fn project(&self, x: &Vec3) -> Option<((f64, f64), Vec3)> {
         let xm = self.r.transpose() * (x - self.t);
         let pin = self.pinhole();
@@ -142,6 +142,11 @@ impl MirrorUnit {
         let mut p = self.mirror.intersect(&xm, &(f1 - xm).normalize())?;
         if !self.is_central() {
             p = self.reflection_point(&xm, p, &pin.center())?;
+        }
+        // Only the mirror's outer (convex) face reflects: a point on the side of F1 would be
+        // seen through the mirror's back.
+        if (xm - p).dot(&self.mirror.normal(&p)) > 0.0 {
+            return None;
         }
         let px = pin.project(&p)?;
         let (w, h) = (f64::from(self.lens.width), f64::from(self.lens.height));

@@ -1784,3 +1784,78 @@ fn omni_decodes_a_rendered_room_into_its_cloud_and_a_panorama_with_corners_at_th
         );
     }
 }
+
+#[test]
+fn calibrate_omni_turns_a_two_position_session_into_ray_tables_that_decode_a_room() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let spec =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/omni/calibration-session.toml");
+    let session = dir.path().join("session");
+    let o = ris(&["simulate", "--scene", s(&spec), "--out", s(&session)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = dir.path().join("cal").join("omni.toml");
+    let o = ris(&["calibrate", "omni", s(&session), "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        out.with_file_name("cam_rays.npy").exists() && out.with_file_name("proj_rays.npy").exists()
+    );
+    let sensor = ris_core::omni::OmniSensor::load(&out).expect("the calibrated file loads");
+    let tables = sensor.tables.as_ref().expect("it names its tables");
+    // Camera rays against the mirror model the session was rendered with.
+    let mut angles: Vec<f64> = tables
+        .0
+        .rays
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| r[0].is_finite())
+        .map(|(i, r)| {
+            let m = sensor
+                .camera
+                .back_project((i % 640) as f64, (i / 640) as f64)
+                .expect("on the mirror");
+            let d =
+                ris_core::geometry::Vec3::new(f64::from(r[3]), f64::from(r[4]), f64::from(r[5]));
+            d.dot(&m.direction).clamp(-1.0, 1.0).acos().to_degrees()
+        })
+        .collect();
+    angles.sort_by(f64::total_cmp);
+    assert!(angles.len() > 80_000, "{} camera rays", angles.len());
+    assert!(
+        angles[angles.len() / 2] < 0.05,
+        "median {:.3}°",
+        angles[angles.len() / 2]
+    );
+    // The calibrated file decodes the room.
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenes/room.toml");
+    let room = dir.path().join("room");
+    let o = ris(&["simulate", "--scene", s(&scene), "--out", s(&room)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let cloud = dir.path().join("room.ply");
+    let o = ris(&[
+        "omni",
+        "--sensor",
+        s(&out),
+        s(&room.join("image.png")),
+        "--pattern",
+        s(&room.join("rings.toml")),
+        "--out",
+        s(&cloud),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let c = ris_core::cloud::PointCloud::read_ply(&cloud).expect("cloud");
+    assert!(c.len() > 5000, "{} points", c.len());
+    // A session with one position is refused by field, and nothing is written.
+    let bad = dir.path().join("bad");
+    std::fs::create_dir_all(&bad).expect("mkdir");
+    std::fs::copy(session.join("sensor.toml"), bad.join("sensor.toml")).expect("copy");
+    std::fs::copy(session.join("session.toml"), bad.join("session.toml")).expect("copy");
+    let text = std::fs::read_to_string(bad.join("session.toml")).expect("session.toml");
+    let cut = text.rfind("[[position]]").expect("two positions");
+    std::fs::write(bad.join("session.toml"), &text[..cut]).expect("write");
+    let bad_out = dir.path().join("bad-cal").join("omni.toml");
+    let o = ris(&["calibrate", "omni", s(&bad), "--out", s(&bad_out)]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(e.contains("position") && e.contains("two"), "{e}");
+    assert!(!bad_out.exists());
+}

@@ -245,9 +245,13 @@ impl RingDecoder {
                 let mut theta = Vec::with_capacity(SAMPLES + 1);
                 for i in 0..=SAMPLES {
                     let t = TAU * i as f64 / SAMPLES as f64;
+                    // The azimuth a ring pixel casts at: from the ray table where it has the
+                    // pixel, else from the mirror model (a calibration may not cover a ring all
+                    // round; its uncovered rays are not triangulated).
+                    let (u, v) = (pcx + ring.radius * t.cos(), pcy + ring.radius * t.sin());
                     let ray = sensor
-                        .projector
-                        .back_project(pcx + ring.radius * t.cos(), pcy + ring.radius * t.sin())?;
+                        .projector_ray(u, v)
+                        .or_else(|| sensor.projector.back_project(u, v))?;
                     let mut a = ray.direction.y.atan2(ray.direction.x);
                     if let Some(prev) = azimuth.last() {
                         while a - prev > std::f64::consts::PI {
@@ -260,14 +264,16 @@ impl RingDecoder {
                     azimuth.push(a);
                     theta.push(t);
                 }
-                if azimuth[SAMPLES] < azimuth[0] {
-                    azimuth.reverse();
-                    theta.reverse();
+                // One turn of the projector must be one turn of azimuth. Calibrated rays are
+                // noisy at the scale of neighbouring samples: order the samples by azimuth.
+                let turn = (azimuth[SAMPLES] - azimuth[0]).abs();
+                if (turn - TAU).abs() > 1e-6 {
+                    return None;
                 }
-                // One turn of the projector must be one turn of azimuth, monotonically.
-                let turn = azimuth[SAMPLES] - azimuth[0];
-                ((turn - TAU).abs() < 1e-6 && azimuth.windows(2).all(|w| w[1] >= w[0]))
-                    .then_some(RingTable { azimuth, theta })
+                let mut pairs: Vec<(f64, f64)> = azimuth.into_iter().zip(theta).collect();
+                pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
+                let (azimuth, theta) = pairs.into_iter().unzip();
+                Some(RingTable { azimuth, theta })
             })
             .collect();
         if tables.iter().all(Option::is_none) {
@@ -333,7 +339,7 @@ impl RingDecoder {
         let theta = self.tables[k].as_ref()?.theta(phi);
         let ring = &self.pattern.ring[k];
         let [pcx, pcy] = self.pattern.pattern.center;
-        self.sensor.projector.back_project(
+        self.sensor.projector_ray(
             pcx + ring.radius * theta.cos(),
             pcy + ring.radius * theta.sin(),
         )
@@ -423,15 +429,25 @@ impl RingDecoder {
             .enumerate()
             .flat_map(|(j, l)| l.iter().map(move |&(r, a)| (j, r, a)))
             .collect();
-        let rays: Vec<Option<(Ray, f64)>> = flat
+        // Camera rays: from the sensor's table (or model); where a calibration did not cover
+        // a pixel, the mirror model still places the crossing in its arc and names its
+        // azimuth, but the crossing is not triangulated (`measured` false).
+        let with: Vec<(Option<(Ray, f64)>, bool)> = flat
             .par_iter()
             .map(|&(j, rho, _)| {
                 let (u, v) = self.pixel(j, f64::from(rho));
-                let ray = cam.back_project(u, v)?;
+                let (ray, measured) = match self.sensor.camera_ray(u, v) {
+                    Some(r) => (r, true),
+                    None => match cam.back_project(u, v) {
+                        Some(r) => (r, false),
+                        None => return (None, false),
+                    },
+                };
                 let phi = ray.direction.y.atan2(ray.direction.x);
-                Some((ray, phi))
+                (Some((ray, phi)), measured)
             })
             .collect();
+        let (rays, measured): (Vec<Option<(Ray, f64)>>, Vec<bool>) = with.into_iter().unzip();
         // Arcs: chains of linked crossings in column order (closed rings start anywhere).
         let mut seen = vec![false; total];
         let mut arcs: Vec<Vec<usize>> = Vec::new();
@@ -463,13 +479,13 @@ impl RingDecoder {
         let decode_s = start.elapsed().as_secs_f64();
         let start = Instant::now();
         let [near, far] = self.params.range_mm;
-        let (flat, rays) = (&flat, &rays);
+        let (flat, rays, measured) = (&flat, &rays, &measured);
         let mut points: Vec<RingPoint> = named
             .par_iter()
             .flat_map_iter(|(k, arc)| {
                 arc.iter().filter_map(move |&i| {
                     let (j, rho, amplitude) = flat[i];
-                    let (ray, phi) = rays[i].as_ref()?;
+                    let (ray, phi) = rays[i].as_ref().filter(|_| measured[i])?;
                     let p = crossing(ray, &self.projector_ray(*k, *phi)?)?;
                     let d = (p - ray.origin).dot(&ray.direction);
                     if !(near..=far).contains(&d) {
@@ -543,7 +559,10 @@ impl RingDecoder {
     ) -> Vec<Option<usize>> {
         let windows: Vec<Option<(usize, usize)>> = arcs
             .par_iter()
-            .map(|arc| self.candidates(rays[arc[arc.len() / 2]].as_ref()?.0))
+            .map(|arc| {
+                let (ray, phi) = rays[arc[arc.len() / 2]].as_ref()?;
+                self.candidates(*ray, *phi)
+            })
             .collect();
         let fits_of = |members: &[usize], lo: usize, hi: usize| -> Vec<(usize, f64)> {
             let parts: Vec<&[usize]> = members.iter().map(|&a| arcs[a].as_slice()).collect();
@@ -553,27 +572,32 @@ impl RingDecoder {
         };
         let best = |fits: &[(usize, f64)]| fits.iter().map(|f| f.1).fold(f64::INFINITY, f64::min);
         // Units: chains whose joint fit holds, else their arcs one by one.
-        let mut units: Vec<Unit> = Vec::new();
-        let groups = self.chains(arcs, offset, flat);
-        for group in groups {
-            let lo = group.iter().filter_map(|&a| windows[a]).map(|w| w.0).min();
-            let hi = group.iter().filter_map(|&a| windows[a]).map(|w| w.1).max();
-            let (Some(lo), Some(hi)) = (lo, hi) else {
-                continue;
-            };
-            if group.len() > 1 {
-                let fits = fits_of(&group, lo, hi);
-                if best(&fits) <= self.params.max_residual {
-                    units.push((group, fits));
-                    continue;
+        let units: Vec<Unit> = self
+            .chains(arcs, offset, flat)
+            .into_par_iter()
+            .flat_map_iter(|group| {
+                let lo = group.iter().filter_map(|&a| windows[a]).map(|w| w.0).min();
+                let hi = group.iter().filter_map(|&a| windows[a]).map(|w| w.1).max();
+                let mut out: Vec<Unit> = Vec::new();
+                if let (Some(lo), Some(hi)) = (lo, hi) {
+                    let fits = if group.len() > 1 {
+                        fits_of(&group, lo, hi)
+                    } else {
+                        Vec::new()
+                    };
+                    if best(&fits) <= self.params.max_residual {
+                        out.push((group, fits));
+                    } else {
+                        for a in group {
+                            if let Some((lo, hi)) = windows[a] {
+                                out.push((vec![a], fits_of(&[a], lo, hi)));
+                            }
+                        }
+                    }
                 }
-            }
-            for a in group {
-                if let Some((lo, hi)) = windows[a] {
-                    units.push((vec![a], fits_of(&[a], lo, hi)));
-                }
-            }
-        }
+                out
+            })
+            .collect();
         let total = flat.len();
         let mut unit_of = vec![usize::MAX; total];
         for (u, (members, _)) in units.iter().enumerate() {
@@ -798,29 +822,22 @@ impl RingDecoder {
         groups
     }
 
-    /// The rings a crossing on camera ray `ray` can belong to within the depth range.
-    fn candidates(&self, ray: Ray) -> Option<(usize, usize)> {
+    /// The rings a crossing on camera ray `ray` (at sensor azimuth `phi`) can belong to: those
+    /// whose projector ray at that azimuth meets it within the depth range.
+    fn candidates(&self, ray: Ray, phi: f64) -> Option<(usize, usize)> {
         let [near, far] = self.params.range_mm;
-        let [pcx, pcy] = self.pattern.pattern.center;
-        let mut span = (f64::INFINITY, f64::NEG_INFINITY);
-        for i in 0..=24 {
-            let d = near * (far / near).powf(f64::from(i) / 24.0);
-            if let Some(((u, v), _)) = self
-                .sensor
-                .projector
-                .project(&(ray.origin + ray.direction * d))
-            {
-                let r = (u - pcx).hypot(v - pcy);
-                span = (span.0.min(r), span.1.max(r));
-            }
-        }
-        if !span.0.is_finite() {
-            return None;
-        }
-        let radii: Vec<f64> = self.pattern.ring.iter().map(|r| r.radius).collect();
-        let lo = radii.partition_point(|r| *r < span.0).saturating_sub(1);
-        let hi = radii.partition_point(|r| *r <= span.1).min(radii.len() - 1);
-        (lo <= hi).then_some((lo, hi))
+        let inside: Vec<usize> = (0..self.pattern.ring.len())
+            .filter(|&k| {
+                self.projector_ray(k, phi)
+                    .and_then(|p| crossing(&ray, &p))
+                    .is_some_and(|x| (near..=far).contains(&(x - ray.origin).dot(&ray.direction)))
+            })
+            .collect();
+        let (lo, hi) = (*inside.first()?, *inside.last()?);
+        Some((
+            lo.saturating_sub(1),
+            (hi + 1).min(self.pattern.ring.len() - 1),
+        ))
     }
 }
 

@@ -5,7 +5,10 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::{Mirror, MirrorUnit};
+use std::sync::Arc;
+
+use super::lut::RayTable;
+use super::{Mirror, MirrorUnit, Ray};
 use crate::geometry::{Distortion, Mat3, Pinhole, Vec3};
 use crate::io::read_toml;
 use crate::{Error, Result};
@@ -80,6 +83,8 @@ pub struct OmniSensor {
     pub projector: MirrorUnit,
     /// Ray tables, resolved against the file's directory.
     pub lut: Option<(PathBuf, PathBuf)>,
+    /// The camera's and the projector's ray tables, when the file names them (loaded).
+    pub tables: Option<Arc<(RayTable, RayTable)>>,
 }
 
 impl OmniSensor {
@@ -102,14 +107,42 @@ impl OmniSensor {
                 ),
             ));
         }
+        let camera = unit(&file.camera, context, "camera")?;
+        let projector = unit(&file.projector, context, "projector")?;
+        let lut = file
+            .lut
+            .as_ref()
+            .map(|l| (base.join(&l.camera), base.join(&l.projector)));
+        let tables = match &lut {
+            Some((c, p)) => Some(Arc::new((
+                RayTable::load(c, camera.lens.width, camera.lens.height)?,
+                RayTable::load(p, projector.lens.width, projector.lens.height)?,
+            ))),
+            None => None,
+        };
         Ok(OmniSensor {
-            camera: unit(&file.camera, context, "camera")?,
-            projector: unit(&file.projector, context, "projector")?,
-            lut: file
-                .lut
-                .as_ref()
-                .map(|l| (base.join(&l.camera), base.join(&l.projector))),
+            camera,
+            projector,
+            lut,
+            tables,
         })
+    }
+
+    /// The ray camera pixel (u, v) sees: from the ray table when the file has one (NaN there:
+    /// `None`, the calibration did not see it), else from the mirror model.
+    pub fn camera_ray(&self, u: f64, v: f64) -> Option<Ray> {
+        match &self.tables {
+            Some(t) => t.0.ray(u, v),
+            None => self.camera.back_project(u, v),
+        }
+    }
+
+    /// The ray projector pixel (u, v) casts, as [`OmniSensor::camera_ray`].
+    pub fn projector_ray(&self, u: f64, v: f64) -> Option<Ray> {
+        match &self.tables {
+            Some(t) => t.1.ray(u, v),
+            None => self.projector.back_project(u, v),
+        }
     }
 }
 

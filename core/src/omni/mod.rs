@@ -2,8 +2,10 @@
 //! a hyperbolic mirror, seeing a whole room around a robot in one shot.
 
 pub mod analysis;
+pub mod calibrate;
 pub mod decode;
 pub mod file;
+pub mod lut;
 pub mod mirror;
 pub mod panorama;
 pub mod render;
@@ -13,6 +15,7 @@ pub mod scene;
 pub use analysis::{analyse, ErrorPoint};
 pub use decode::{RingDecode, RingDecoder, RingParams, RingPoint};
 pub use file::{OmniFile, OmniSensor};
+pub use lut::RayTable;
 pub use mirror::{Mirror, MirrorUnit, Ray};
 pub use panorama::{panorama, Panorama};
 pub use render::{render, Exposure, OmniTruth, Room};

@@ -35,7 +35,6 @@ pub fn panorama(
     decoded: &RingDecode,
     range: FusionRange,
 ) -> Result<Panorama> {
-    let cam = &sensor.camera;
     let [cx, cy] = decoder.center();
     let [rho0, outer] = decoder.radial_span();
     let width = decoder.columns();
@@ -43,7 +42,8 @@ pub fn panorama(
     // Image angle → sensor azimuth is ± the image angle plus an offset for a stacked unit.
     let azimuth_at = |t: f64| {
         let rho = 0.5 * (rho0 + outer);
-        cam.back_project(cx + rho * t.cos(), cy + rho * t.sin())
+        sensor
+            .camera_ray(cx + rho * t.cos(), cy + rho * t.sin())
             .map(|r| r.direction.y.atan2(r.direction.x))
     };
     let (a0, a1) = (azimuth_at(0.0), azimuth_at(0.01));
@@ -85,7 +85,7 @@ pub fn panorama(
     }
     let fused = fuse(&unrolled, &cloud, [0.0, 0.0, 0.0], range, None)?;
     let elevation = |rho: f64| {
-        cam.back_project(cx + rho, cy).map_or(f64::NAN, |r| {
+        sensor.camera_ray(cx + rho, cy).map_or(f64::NAN, |r| {
             r.direction
                 .z
                 .atan2(r.direction.x.hypot(r.direction.y))

@@ -223,7 +223,7 @@ pub fn render(
 type RowOut = (Vec<u8>, Vec<[f32; 3]>, Vec<bool>, Vec<[f32; 2]>);
 
 /// A standard normal deviate from `seed` and `index` (two rounds of SplitMix64, Box–Muller).
-fn gaussian(seed: u64, index: u64) -> f64 {
+pub(crate) fn gaussian(seed: u64, index: u64) -> f64 {
     let mix = |mut z: u64| {
         z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
         z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);

@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use ris_core::calibrate::GaugeParams;
 use ris_core::decode::DecodeParams;
@@ -153,6 +153,17 @@ enum CameraCommand {
 
 #[derive(Subcommand)]
 enum CalibrateCommand {
+    /// The omnidirectional sensor's per-pixel ray tables (Eq. 6.1–6.6) from a two-position
+    /// session of a dotted cylinder target (`ris simulate --scene SESSION.toml` makes one):
+    /// writes OUT (the nominal file naming the tables) with cam_rays.npy and proj_rays.npy
+    /// beside it; pixels the target did not cover at both positions stay NaN.
+    Omni {
+        /// Session directory (with session.toml).
+        session: PathBuf,
+        /// Sensor file to write.
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// A sensor (camera, projector centre, reference, per-pixel residual) from a multi-layer
     /// session (SPEC §7); the sensor file is written only when every gate passes.
     Sensor {
@@ -835,6 +846,25 @@ fn main() -> Result<()> {
             commands::precision::run(&sensor, &captures, &decode.params(), &out, scale)?;
         }
         Command::Simulate { scene, out, show } => {
+            if ris_core::omni::calibrate::is_session(&scene) {
+                ris_core::omni::calibrate::simulate_session_file(
+                    &scene,
+                    &ris_core::omni::Exposure::default(),
+                    &out,
+                )
+                .with_context(|| {
+                    format!(
+                        "simulating the omni calibration session {}",
+                        scene.display()
+                    )
+                })?;
+                println!(
+                    "simulated omni calibration session {} -> {}",
+                    scene.display(),
+                    out.display()
+                );
+                return Ok(());
+            }
             if ris_core::omni::scene::OmniScene::is_room_scene(&scene) {
                 commands::simulate::omni(&scene, &out, show.as_deref())?;
                 return Ok(());
@@ -1019,6 +1049,9 @@ fn main() -> Result<()> {
             if !cal.passed() {
                 std::process::exit(3);
             }
+        }
+        Command::Calibrate(CalibrateCommand::Omni { session, out }) => {
+            commands::calibrate::omni(&session, &out)?;
         }
         Command::Calibrate(CalibrateCommand::Camera {
             board,

@@ -339,3 +339,27 @@ pub fn cell(
     }
     Ok(fits)
 }
+
+/// `ris calibrate omni`: the ray tables from the session in `session`, written with the sensor
+/// file `out`; prints what was found.
+pub fn omni(session: &Path, out: &Path) -> Result<()> {
+    let cal = ris_core::omni::calibrate::calibrate(session)
+        .with_context(|| format!("calibrating from {}", session.display()))?;
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    cal.save(out)
+        .with_context(|| format!("writing {}", out.display()))?;
+    let r = &cal.report;
+    for (k, [found, in_view]) in r.dots.iter().enumerate() {
+        println!(
+            "position {}: {found} of {in_view} dots in view found (towards the image's centre they crowd too close to part)",
+            k + 1
+        );
+    }
+    println!(
+        "camera rays for {} of {} mirror pixels, projector rays for {} of {} (the rest: not seen at both positions, NaN) -> {}",
+        r.camera_pixels[0], r.camera_pixels[1], r.projector_pixels[0], r.projector_pixels[1], out.display()
+    );
+    Ok(())
+}

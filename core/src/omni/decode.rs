@@ -1005,6 +1005,9 @@ mod tests {
         median: f64,
         p90: f64,
         points: usize,
+        /// Median |error| of points on walls 2.25–2.75 m from the axis, within 0.6 m of the
+        /// sensor's height, and the analysis' one-pixel depth error at 2.5 m, height 0.
+        wall_2500: (f64, f64),
     }
 
     /// Visible crossings: along each radial line, where the truth's projector radius passes a
@@ -1053,6 +1056,7 @@ mod tests {
         }
         let (mut wrong, mut found) = (0usize, std::collections::HashSet::new());
         let mut errs: Vec<f64> = Vec::new();
+        let mut wall: Vec<f64> = Vec::new();
         for p in &out.points {
             let i = p.pixel[1].round() as usize * w + p.pixel[0].round() as usize;
             let (rp, _) = ring_at(truth.projector[i]);
@@ -1078,7 +1082,13 @@ mod tests {
                 f64::from(p.point[1]),
                 f64::from(p.point[2]),
             );
-            errs.push((q - (ray.origin + ray.direction * t)).norm());
+            let truth_point = ray.origin + ray.direction * t;
+            errs.push((q - truth_point).norm());
+            if (2250.0..=2750.0).contains(&truth_point.x.hypot(truth_point.y))
+                && truth_point.z.abs() <= 600.0
+            {
+                wall.push((q - truth_point).norm());
+            }
         }
         errs.sort_by(f64::total_cmp);
         let n = errs.len().max(1);
@@ -1088,6 +1098,14 @@ mod tests {
             median: errs.get(n / 2).copied().unwrap_or(f64::INFINITY),
             p90: errs.get(n * 9 / 10).copied().unwrap_or(f64::INFINITY),
             points: out.points.len(),
+            wall_2500: {
+                wall.sort_by(f64::total_cmp);
+                let bound = crate::omni::analyse(s, &[2500.0], &[0.0])
+                    .expect("analysis")
+                    .first()
+                    .map_or(f64::NAN, |p| p.depth_error_camera_mm);
+                (wall.get(wall.len() / 2).copied().unwrap_or(f64::NAN), bound)
+            },
         }
     }
 
@@ -1110,12 +1128,14 @@ mod tests {
         let out = dec.decode(&img).expect("decode");
         let sc = score(&s, &room, &pattern, &dec, &truth, &out);
         eprintln!(
-            "{sensor_file} room {seed}: {} points, coverage {:.1} %, wrong ring {:.2} %, median {:.1} mm, p90 {:.1} mm, decode {:.3} s + {:.3} s",
+            "{sensor_file} room {seed}: {} points, coverage {:.1} %, wrong ring {:.2} %, median {:.1} mm, p90 {:.1} mm, walls at 2.5 m {:.1} mm (analysis, one pixel: {:.1} mm), decode {:.3} s + {:.3} s",
             sc.points,
             100.0 * sc.coverage,
             100.0 * sc.wrong,
             sc.median,
             sc.p90,
+            sc.wall_2500.0,
+            sc.wall_2500.1,
             out.decode_s,
             out.reconstruct_s
         );
@@ -1137,6 +1157,12 @@ mod tests {
             assert!(sc.wrong < 0.06, "room {seed}: wrong ring {:.3}", sc.wrong);
             assert!(sc.median < 20.0, "room {seed}: median {:.1} mm", sc.median);
             assert!(sc.p90 < 120.0, "room {seed}: p90 {:.1} mm", sc.p90);
+            // Within the error analysis: a fraction of the one-pixel figure (sub-pixel rings).
+            let (wall, bound) = sc.wall_2500;
+            assert!(
+                wall < 0.25 * bound,
+                "room {seed}: walls {wall:.1} mm, bound {bound:.1}"
+            );
         }
     }
 
@@ -1149,6 +1175,11 @@ mod tests {
         assert!(sc.coverage > 0.75, "coverage {:.3}", sc.coverage);
         assert!(sc.wrong < 0.05, "wrong ring {:.3}", sc.wrong);
         assert!(sc.median < 40.0, "median {:.1} mm", sc.median);
+        let (wall, bound) = sc.wall_2500;
+        assert!(
+            wall < 0.25 * bound,
+            "walls at 2.5 m {wall:.1} mm, bound {bound:.1}"
+        );
     }
 
     #[test]

@@ -1859,3 +1859,177 @@ fn calibrate_omni_turns_a_two_position_session_into_ray_tables_that_decode_a_roo
     assert!(e.contains("position") && e.contains("two"), "{e}");
     assert!(!bad_out.exists());
 }
+
+/// Rooms rendered by an independent renderer (`tests/omni_room_render.py`, numpy: 2 × 2 rays
+/// per pixel, rings evaluated from rings.toml's formula, its own mirror and room code, 1.5
+/// levels of noise) decode with `ris omni`: share of the ring pixels reconstructed, and the
+/// points' error against the room.
+#[test]
+fn omni_decodes_rooms_rendered_by_an_independent_renderer() {
+    use ris_core::geometry::Vec3;
+    use ris_core::io::npy;
+    let dir = tempfile::tempdir().expect("tmp");
+    let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/omni/seed.toml");
+    let renderer = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/omni_room_render.py");
+    let rings_dir = dir.path().join("rings");
+    let o = ris(&[
+        "patterns",
+        "--rings",
+        "--projector",
+        "640x480",
+        "--center",
+        "319.5,239.5",
+        "--out",
+        s(&rings_dir),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let rings_toml = rings_dir.join("rings.toml");
+    let rings: ris_core::omni::RingPattern = ris_core::io::read_toml(&rings_toml).expect("rings");
+    let sensor = ris_core::omni::OmniSensor::load(&config).expect("sensor");
+    // (half, centre, floor, ceiling, box centre, box half, noise seed)
+    let rooms = [
+        (
+            [2900.0, 2400.0],
+            [150.0, -250.0],
+            -1250.0,
+            1350.0,
+            [-1400.0, 900.0, -850.0],
+            [350.0, 300.0, 400.0],
+            11,
+        ),
+        (
+            [3400.0, 2100.0],
+            [-300.0, 200.0],
+            -1100.0,
+            1200.0,
+            [1200.0, -1100.0, -700.0],
+            [300.0, 400.0, 400.0],
+            12,
+        ),
+    ];
+    for (n, (half, centre, floor, ceiling, bc, bh, seed)) in rooms.into_iter().enumerate() {
+        let out = dir.path().join(format!("room{n}"));
+        std::fs::create_dir_all(&out).expect("mkdir");
+        let room_json = out.join("room.json");
+        let spec = serde_json::json!({
+            "half": half, "center": centre, "floor": floor, "ceiling": ceiling,
+            "albedo": [0.55, 0.35, 0.65],
+            "boxes": [{"center": bc, "half": bh, "albedo": 0.5}],
+            "gain": 230.0, "ambient": 0.03, "noise": 1.5, "seed": seed
+        });
+        std::fs::write(&room_json, spec.to_string()).expect("room.json");
+        let py = Command::new("python3")
+            .arg(&renderer)
+            .args([&config, &rings_toml, &room_json, &out])
+            .output()
+            .expect("python3");
+        assert!(
+            py.status.success(),
+            "{}",
+            String::from_utf8_lossy(&py.stderr)
+        );
+        let cloud = out.join("cloud.ply");
+        let o = ris(&[
+            "omni",
+            "--sensor",
+            s(&config),
+            s(&out.join("image.png")),
+            "--pattern",
+            s(&rings_toml),
+            "--out",
+            s(&cloud),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let c = ris_core::cloud::PointCloud::read_ply(&cloud).expect("cloud");
+        let col = |name: &str| {
+            c.scalars
+                .iter()
+                .find(|x| x.name == name)
+                .expect(name)
+                .values
+                .clone()
+        };
+        let (u, v, ring) = (col("u"), col("v"), col("ring"));
+        // The room as the renderer was given it, for the truth along each point's camera ray.
+        let room = ris_core::omni::Room {
+            half,
+            center: centre,
+            floor,
+            ceiling,
+            albedo: [0.55, 0.35, 0.65],
+            objects: vec![(
+                ris_core::sim::Shape::Box {
+                    center: Vec3::from(bc),
+                    half: Vec3::from(bh),
+                },
+                0.5,
+            )],
+        };
+        let mut errors: Vec<f64> = (0..c.len())
+            .map(|i| {
+                let ray = sensor
+                    .camera
+                    .back_project(f64::from(u[i]), f64::from(v[i]))
+                    .expect("on the mirror");
+                let (t, _, _) = room.intersect(&ray.origin, &ray.direction).expect("room");
+                let p = c.points[i];
+                (Vec3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))
+                    - (ray.origin + ray.direction * t))
+                    .norm()
+            })
+            .collect();
+        errors.sort_by(f64::total_cmp);
+        let median = errors[errors.len() / 2];
+        let far = errors.iter().filter(|e| **e > 300.0).count() as f64 / errors.len() as f64;
+        // Ring pixels: lit pixels whose projector pixel lies within 0.5 px of a ring's centre
+        // where that ring is at least a quarter bright; reconstructed when a point of that ring
+        // lies within 1.5 px.
+        let (_, proj) = npy::read::<f32>(&out.join("projector.npy")).expect("projector.npy");
+        let [pcx, pcy] = rings.pattern.center;
+        let mut decoded: std::collections::HashMap<(i64, i64), Vec<u32>> = Default::default();
+        for i in 0..c.len() {
+            decoded
+                .entry((u[i].round() as i64, v[i].round() as i64))
+                .or_default()
+                .push(ring[i] as u32);
+        }
+        let (mut ring_pixels, mut reconstructed) = (0usize, 0usize);
+        for i in 0..640 * 480 {
+            let (pu, pv) = (f64::from(proj[2 * i]), f64::from(proj[2 * i + 1]));
+            if !pu.is_finite() {
+                continue;
+            }
+            let (rho, theta) = ((pu - pcx).hypot(pv - pcy), (pv - pcy).atan2(pu - pcx));
+            let Some(k) = rings.ring.iter().position(|r| {
+                (rho - r.radius).abs() <= 0.5
+                    && 0.5 * (1.0 + (f64::from(r.frequency) * theta + r.phase).cos()) >= 0.25
+            }) else {
+                continue;
+            };
+            ring_pixels += 1;
+            let (x, y) = ((i % 640) as i64, (i / 640) as i64);
+            let hit = (-2..=2).any(|dy| {
+                (-2..=2).any(|dx| {
+                    decoded
+                        .get(&(x + dx, y + dy))
+                        .is_some_and(|rs| rs.contains(&(k as u32)))
+                })
+            });
+            reconstructed += usize::from(hit);
+        }
+        let coverage = reconstructed as f64 / ring_pixels as f64;
+        eprintln!(
+            "independent room {n}: {} points, {reconstructed} of {ring_pixels} ring pixels ({:.1} %), median {median:.1} mm, {:.2} % beyond 300 mm",
+            c.len(),
+            100.0 * coverage,
+            100.0 * far
+        );
+        assert!(
+            coverage > 0.85,
+            "room {n}: ring pixels reconstructed {:.3}",
+            coverage
+        );
+        assert!(median < 25.0, "room {n}: median {median:.1} mm");
+        assert!(far < 0.06, "room {n}: {:.3} beyond 300 mm", far);
+    }
+}

@@ -5,7 +5,7 @@
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use ris_core::geometry::Vec3;
-use ris_core::omni::{render, Exposure, OmniSensor, RingDecoder, RingParams, RingPattern, Room};
+use ris_core::omni::{render, Exposure, OmniSensor, RingDecoder, RingParams, Room};
 use ris_core::sim::Shape;
 
 fn room() -> Room {
@@ -43,13 +43,7 @@ fn decode(c: &mut Criterion) {
             .join("../config/omni")
             .join(file);
         let s = OmniSensor::load(&path).expect("sensor");
-        let k = s.projector.lens.k;
-        let pattern = RingPattern::design(
-            s.projector.lens.width,
-            s.projector.lens.height,
-            [k[(0, 2)], k[(1, 2)]],
-        )
-        .expect("design");
+        let pattern = s.rings().expect("design");
         let (img, _) =
             render(&s, &room(), &pattern.render(), &Exposure::default()).expect("render");
         let dec = RingDecoder::new(&s, &pattern, RingParams::default()).expect("decoder");

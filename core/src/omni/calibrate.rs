@@ -931,7 +931,6 @@ mod tests {
     use super::*;
     use crate::omni::decode::{RingDecoder, RingParams};
     use crate::omni::render::{render, Room};
-    use crate::omni::RingPattern;
     use crate::sim::Shape;
 
     fn seed_file() -> PathBuf {
@@ -969,13 +968,7 @@ mod tests {
         used: &OmniSensor,
         room: &Room,
     ) -> std::collections::HashMap<(u32, u32), f64> {
-        let k = truth.projector.lens.k;
-        let pattern = RingPattern::design(
-            truth.projector.lens.width,
-            truth.projector.lens.height,
-            [k[(0, 2)], k[(1, 2)]],
-        )
-        .expect("design");
+        let pattern = truth.rings().expect("design");
         let (img, _) =
             render(truth, room, &pattern.render(), &Exposure::default()).expect("render");
         let dec = RingDecoder::new(used, &pattern, RingParams::default()).expect("decoder");

@@ -1111,13 +1111,7 @@ mod tests {
 
     fn run(sensor_file: &str, seed: u64) -> Score {
         let s = sensor(sensor_file);
-        let k = s.projector.lens.k;
-        let pattern = RingPattern::design(
-            s.projector.lens.width,
-            s.projector.lens.height,
-            [k[(0, 2)], k[(1, 2)]],
-        )
-        .expect("design");
+        let pattern = s.rings().expect("design");
         let room = room(seed);
         let exposure = Exposure {
             seed,

@@ -128,6 +128,12 @@ impl OmniSensor {
         })
     }
 
+    /// The default ring pattern for this sensor's projector, about its principal point.
+    pub fn rings(&self) -> Result<super::RingPattern> {
+        let l = &self.projector.lens;
+        super::RingPattern::design(l.width, l.height, [l.k[(0, 2)], l.k[(1, 2)]])
+    }
+
     /// The ray camera pixel (u, v) sees: from the ray table when the file has one (NaN there:
     /// `None`, the calibration did not see it), else from the mirror model.
     pub fn camera_ray(&self, u: f64, v: f64) -> Option<Ray> {

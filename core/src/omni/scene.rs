@@ -267,8 +267,7 @@ impl OmniScene {
 
     /// The ring pattern for this sensor's projector (about its principal point).
     pub fn rings(&self) -> Result<RingPattern> {
-        let l = &self.sensor.projector.lens;
-        RingPattern::design(l.width, l.height, [l.k[(0, 2)], l.k[(1, 2)]])
+        self.sensor.rings()
     }
 
     /// The camera image of the projector showing `picture`, and its truth.

@@ -72,15 +72,9 @@ pub fn decode_file(
     let rings = match pattern {
         Some(p) => ris_core::io::read_toml::<RingPattern>(p)
             .with_context(|| format!("reading ring pattern {}", p.display()))?,
-        None => {
-            let k = s.projector.lens.k;
-            RingPattern::design(
-                s.projector.lens.width,
-                s.projector.lens.height,
-                [k[(0, 2)], k[(1, 2)]],
-            )
-            .with_context(|| format!("designing rings for {}", sensor.display()))?
-        }
+        None => s
+            .rings()
+            .with_context(|| format!("designing rings for {}", sensor.display()))?,
     };
     let img =
         GrayImage::load(image).with_context(|| format!("reading image {}", image.display()))?;

@@ -60,6 +60,9 @@ pub struct RingPoint {
     pub azimuth: f32,
     /// Peak brightness over the dark beside it, grey levels.
     pub amplitude: f32,
+    /// Share of its arc's brightness the ring leaves unexplained (0 … the decoder's
+    /// `max_residual`): how surely the ring was named.
+    pub fit: f32,
     /// The point, sensor frame, mm.
     pub point: [f32; 3],
 }
@@ -82,8 +85,9 @@ pub struct RingDecode {
 }
 
 impl RingDecode {
-    /// The points as a cloud (sensor frame, mm) with `ring`, the camera pixel (`u`, `v`) and
-    /// `azimuth` (degrees) per point, and the amplitude as confidence (scaled to 0 … 1 by the
+    /// The points as a cloud (sensor frame, mm) with `ring`, `fit` (the share of its arc's
+    /// brightness the ring leaves unexplained), the camera pixel (`u`, `v`) and `azimuth`
+    /// (degrees) per point, and the amplitude as confidence (scaled to 0 … 1 by the
     /// brightest).
     pub fn cloud(&self) -> PointCloud {
         let top = self
@@ -98,6 +102,10 @@ impl RingDecode {
                 Scalar {
                     name: "ring".into(),
                     values: self.points.iter().map(|p| p.ring as f32).collect(),
+                },
+                Scalar {
+                    name: "fit".into(),
+                    values: self.points.iter().map(|p| p.fit).collect(),
                 },
                 Scalar {
                     name: "u".into(),
@@ -471,7 +479,7 @@ impl RingDecoder {
             }
         }
         let labels = self.label(&arcs, &offset, &flat, &rays);
-        let named: Vec<(usize, &Vec<usize>)> = arcs
+        let named: Vec<((usize, f64), &Vec<usize>)> = arcs
             .iter()
             .zip(&labels)
             .filter_map(|(arc, l)| Some(((*l)?, arc)))
@@ -482,7 +490,7 @@ impl RingDecoder {
         let (flat, rays, measured) = (&flat, &rays, &measured);
         let mut points: Vec<RingPoint> = named
             .par_iter()
-            .flat_map_iter(|(k, arc)| {
+            .flat_map_iter(|((k, fit), arc)| {
                 arc.iter().filter_map(move |&i| {
                     let (j, rho, amplitude) = flat[i];
                     let (ray, phi) = rays[i].as_ref().filter(|_| measured[i])?;
@@ -495,6 +503,7 @@ impl RingDecoder {
                     Some(RingPoint {
                         pixel: [u as f32, v as f32],
                         ring: *k as u32,
+                        fit: *fit as f32,
                         column: j as u32,
                         azimuth: *phi as f32,
                         amplitude,
@@ -556,7 +565,7 @@ impl RingDecoder {
         offset: &[usize],
         flat: &[(usize, f32, f32)],
         rays: &[Option<(Ray, f64)>],
-    ) -> Vec<Option<usize>> {
+    ) -> Vec<Option<(usize, f64)>> {
         let windows: Vec<Option<(usize, usize)>> = arcs
             .par_iter()
             .map(|arc| {
@@ -733,7 +742,7 @@ impl RingDecoder {
                 && (decisive || (agree > 0 && agree >= 2 * against) || (unique && against <= agree))
             {
                 for &a in members {
-                    out[a] = Some(k);
+                    out[a] = Some((k, r));
                 }
             }
         }

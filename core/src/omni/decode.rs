@@ -673,14 +673,49 @@ impl RingDecoder {
             false
         };
         const NOISE: f64 = 0.02;
-        let cost = |u: usize, k: usize, r: f64, labels: &[Option<usize>]| {
-            let size = units[u].0.iter().map(|&a| arcs[a].len()).sum::<usize>() as f64;
-            let against: usize = relations[u]
+        // The rings that may sit beside ring `kb` at azimuth `phi` (the `beside` relation
+        // enumerated: up to three on either side, up to and including the first bright one).
+        let besides = |kb: usize, phi: f64, out: &mut Vec<usize>| {
+            for dir in [-1i64, 1] {
+                let mut r = kb as i64;
+                for _ in 0..3 {
+                    r += dir;
+                    if r < 0 || r >= n as i64 {
+                        break;
+                    }
+                    out.push(r as usize);
+                    if self.modulation(r as usize, phi).unwrap_or(0.0) >= 0.35 {
+                        break;
+                    }
+                }
+            }
+        };
+        let sizes: Vec<f64> = units
+            .iter()
+            .map(|(members, _)| members.iter().map(|&a| arcs[a].len()).sum::<usize>() as f64)
+            .collect();
+        // Each candidate's cost for unit `u`: its fit, plus the neighbours it disagrees with
+        // (all labelled neighbours, less those that would have it beside them).
+        let choose = |u: usize, labels: &[Option<usize>], scratch: &mut Vec<usize>| {
+            let mut total = 0usize;
+            let mut agree: Vec<(usize, usize)> = Vec::new();
+            for (b, phi, count) in &relations[u] {
+                let Some(kb) = labels[*b] else { continue };
+                total += count;
+                scratch.clear();
+                besides(kb, *phi, scratch);
+                agree.extend(scratch.iter().map(|&k| (k, *count)));
+            }
+            units[u]
+                .1
                 .iter()
-                .filter(|(b, phi, _)| labels[*b].is_some_and(|kb| !beside(kb, k, *phi)))
-                .map(|r| r.2)
-                .sum();
-            size * r.min(0.5) / NOISE + against as f64
+                .filter(|f| f.1 <= self.params.max_residual)
+                .map(|&(k, r)| {
+                    let with: usize = agree.iter().filter(|a| a.0 == k).map(|a| a.1).sum();
+                    (k, sizes[u] * r.min(0.5) / NOISE + (total - with) as f64)
+                })
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .map(|c| c.0)
         };
         let mut labels: Vec<Option<usize>> = units
             .iter()
@@ -692,19 +727,12 @@ impl RingDecoder {
             })
             .collect();
         let mut order: Vec<usize> = (0..units.len()).collect();
-        order.sort_by_key(|&u| {
-            std::cmp::Reverse(units[u].0.iter().map(|&a| arcs[a].len()).sum::<usize>())
-        });
+        order.sort_by(|&a, &b| sizes[b].total_cmp(&sizes[a]));
+        let mut scratch = Vec::new();
         for _ in 0..20 {
             let mut changed = false;
             for &u in &order {
-                let choice = units[u]
-                    .1
-                    .iter()
-                    .filter(|f| f.1 <= self.params.max_residual)
-                    .map(|&(k, r)| (k, cost(u, k, r, &labels)))
-                    .min_by(|a, b| a.1.total_cmp(&b.1))
-                    .map(|c| c.0);
+                let choice = choose(u, &labels, &mut scratch);
                 if choice != labels[u] {
                     labels[u] = choice;
                     changed = true;

@@ -9,7 +9,7 @@ use super::decode::{RingDecode, RingDecoder};
 use super::OmniSensor;
 use crate::cloud::PointCloud;
 use crate::image::GrayImage;
-use crate::single_shot::{fuse, Fused, FusionRange};
+use crate::single_shot::{fuse_from, Fused, FusionRange};
 use crate::Result;
 
 /// A panorama and how its pixels map to directions.
@@ -83,7 +83,14 @@ pub fn panorama(
         cloud.confidence.push(1.0);
         cloud.pixels.push((y as usize * width + x) as u32);
     }
-    let fused = fuse(&unrolled, &cloud, [0.0, 0.0, 0.0], range, None)?;
+    let fused = fuse_from(
+        &unrolled,
+        &cloud,
+        [0.0, 0.0, 0.0],
+        range,
+        None,
+        "mm from sensor",
+    )?;
     let elevation = |rho: f64| {
         sensor.camera_ray(cx + rho, cy).map_or(f64::NAN, |r| {
             r.direction

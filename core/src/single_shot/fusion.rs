@@ -104,6 +104,19 @@ pub fn fuse(
     range: FusionRange,
     radius: Option<f64>,
 ) -> Result<Fused> {
+    fuse_from(image, cloud, eye, range, radius, "mm from camera")
+}
+
+/// [`fuse`] with the colour bar's caption naming where distance is measured from (the
+/// omnidirectional panorama measures from the sensor's origin).
+pub fn fuse_from(
+    image: &GrayImage,
+    cloud: &PointCloud,
+    eye: [f64; 3],
+    range: FusionRange,
+    radius: Option<f64>,
+    caption: &str,
+) -> Result<Fused> {
     let (w, h) = (image.width as usize, image.height as usize);
     match cloud.image {
         Some([cw, ch]) if (cw as usize, ch as usize) == (w, h) => {}
@@ -173,7 +186,7 @@ pub fn fuse(
             cv.put(x as i64, y as i64, c);
         }
     }
-    draw_bar(&mut cv, w as i64, h.max(220) as i64, range);
+    draw_bar(&mut cv, w as i64, h.max(220) as i64, range, caption);
     Ok(Fused {
         width: cv.width,
         height: cv.height,
@@ -237,7 +250,7 @@ fn median_spacing(at: &[(f64, f64)], w: usize, h: usize) -> f64 {
 
 /// The colour bar right of the picture: red (near) at the top, blue (far) at the bottom,
 /// ticked at round distances with their values in mm.
-fn draw_bar(cv: &mut Canvas, x0: i64, height: i64, range: FusionRange) {
+fn draw_bar(cv: &mut Canvas, x0: i64, height: i64, range: FusionRange, caption: &str) {
     const INK: [u8; 3] = [20, 20, 20];
     let (bx, by) = (x0 + 16, 34i64);
     let (bw, bh) = (22i64, (height - 60).max(100));
@@ -262,13 +275,7 @@ fn draw_bar(cv: &mut Canvas, x0: i64, height: i64, range: FusionRange) {
         );
         v += step;
     }
-    cv.text(
-        x0 as f64 + 8.0,
-        (by + bh + 8) as f64,
-        12.0,
-        "mm from camera",
-        INK,
-    );
+    cv.text(x0 as f64 + 8.0, (by + bh + 8) as f64, 12.0, caption, INK);
 }
 
 /// 1, 2 or 5 × a power of ten, at least `raw`.

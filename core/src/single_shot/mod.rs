@@ -10,6 +10,6 @@ mod reconstruct;
 
 pub use decode::{decode, Correspondence, DecodeStats, Predict};
 pub use detect::{detect, DetectParams, Detection};
-pub use fusion::{fuse, Fused, FusionRange};
+pub use fusion::{fuse, fuse_from, Fused, FusionRange};
 pub use pattern::{PatternSection, Primitives, XPointPattern, MIN_STEP};
 pub use reconstruct::{measure, reconstruct, Measured, ReferencePrediction};

@@ -166,6 +166,16 @@ impl SessionFile {
                     format!("{:?}: bottom < top", p.z),
                 );
             }
+            if p.radius > 100_000.0 || p.z[1] - p.z[0] > 4.0 * p.radius {
+                return bad(
+                    &format!("position[{k}]"),
+                    format!(
+                        "radius {} mm, height {} mm: at most 100 m, and no taller than twice its width",
+                        p.radius,
+                        p.z[1] - p.z[0]
+                    ),
+                );
+            }
         }
         if (self.position[0].radius - self.position[1].radius).abs() < 100.0 {
             return bad(
@@ -1012,6 +1022,11 @@ mod tests {
             dir.path(),
         )
         .expect("session");
+        let mut tall = session();
+        tall.position[1].z = [-1e9, 1e9];
+        let e = simulate_session(&truth, &nominal, &tall, &Exposure::default(), dir.path())
+            .expect_err("an unbounded target");
+        assert!(e.to_string().contains("position[1]"), "{e}");
         let cal = calibrate(dir.path()).expect("calibrate");
         eprintln!("{:?}", cal.report);
         for [found, expected] in &cal.report.dots {

@@ -183,6 +183,9 @@ pub struct RingDecoder {
 /// Arcs named together (indices) and their fit per candidate ring (ring, unexplained share).
 type Unit = (Vec<usize>, Vec<(usize, f64)>);
 
+/// Most rings a pattern may have (each costs a table of its projector rays).
+const MAX_RINGS: usize = 4096;
+
 /// Radial sampling step, camera pixels.
 const STEP: f64 = 0.5;
 
@@ -200,6 +203,30 @@ impl RingDecoder {
                     pattern.pattern.width, pattern.pattern.height
                 ),
             ));
+        }
+        if pattern.ring.is_empty() || pattern.ring.len() > MAX_RINGS {
+            return Err(Error::invalid(
+                "ring pattern",
+                "ring",
+                format!("{} rings: 1 … {MAX_RINGS}", pattern.ring.len()),
+            ));
+        }
+        for (k, r) in pattern.ring.iter().enumerate() {
+            let bad = |field: &str, v: f64| {
+                Error::invalid("ring pattern", format!("ring[{k}].{field}"), v.to_string())
+            };
+            if !(r.radius.is_finite() && r.radius > 0.0) {
+                return Err(bad("radius", r.radius));
+            }
+            if !(r.width.is_finite() && r.width > 0.0) {
+                return Err(bad("width", r.width));
+            }
+            if !(r.intensity.is_finite() && (0.0..=1.0).contains(&r.intensity)) {
+                return Err(bad("intensity", r.intensity));
+            }
+            if !r.phase.is_finite() {
+                return Err(bad("phase", r.phase));
+            }
         }
         let [near, far] = params.range_mm;
         if !(near > 0.0 && far > near && far.is_finite()) {
@@ -1225,6 +1252,27 @@ mod tests {
             ..RingParams::default()
         };
         assert!(RingDecoder::new(&s, &p, bad).is_err());
+        for (field, change) in [
+            (
+                "ring[2].width",
+                Box::new(|p: &mut RingPattern| p.ring[2].width = 0.0)
+                    as Box<dyn Fn(&mut RingPattern)>,
+            ),
+            (
+                "ring[0].radius",
+                Box::new(|p: &mut RingPattern| p.ring[0].radius = f64::NAN),
+            ),
+            (
+                "ring[1].intensity",
+                Box::new(|p: &mut RingPattern| p.ring[1].intensity = 2.0),
+            ),
+            ("ring", Box::new(|p: &mut RingPattern| p.ring.clear())),
+        ] {
+            let mut bad = p.clone();
+            change(&mut bad);
+            let e = RingDecoder::new(&s, &bad, RingParams::default()).expect_err(field);
+            assert!(e.to_string().contains(field), "{e}");
+        }
         let dec = RingDecoder::new(&s, &p, RingParams::default()).expect("decoder");
         let small = GrayImage::from_u8(10, 10, vec![0; 100]);
         let e = dec.decode(&small).expect_err("size");

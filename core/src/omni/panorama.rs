@@ -42,8 +42,11 @@ pub fn panorama(
     // Image angle → sensor azimuth is ± the image angle plus an offset for a stacked unit.
     let azimuth_at = |t: f64| {
         let rho = 0.5 * (rho0 + outer);
+        let (u, v) = (cx + rho * t.cos(), cy + rho * t.sin());
+        // The model where a ray table leaves the pixel out: only the turn's sense is needed.
         sensor
-            .camera_ray(cx + rho * t.cos(), cy + rho * t.sin())
+            .camera_ray(u, v)
+            .or_else(|| sensor.camera.back_project(u, v))
             .map(|r| r.direction.y.atan2(r.direction.x))
     };
     let (a0, a1) = (azimuth_at(0.0), azimuth_at(0.01));
@@ -92,12 +95,15 @@ pub fn panorama(
         "mm from sensor",
     )?;
     let elevation = |rho: f64| {
-        sensor.camera_ray(cx + rho, cy).map_or(f64::NAN, |r| {
-            r.direction
-                .z
-                .atan2(r.direction.x.hypot(r.direction.y))
-                .to_degrees()
-        })
+        sensor
+            .camera_ray(cx + rho, cy)
+            .or_else(|| sensor.camera.back_project(cx + rho, cy))
+            .map_or(f64::NAN, |r| {
+                r.direction
+                    .z
+                    .atan2(r.direction.x.hypot(r.direction.y))
+                    .to_degrees()
+            })
     };
     Ok(Panorama {
         fused,

@@ -30,6 +30,8 @@ pub struct PairStatus {
     pub sensor: String,
     /// Backend.
     pub backend: String,
+    /// What it measures with (`structured-light` or `omni`).
+    pub kind: crate::config::SensorKind,
     /// Camera id.
     pub camera: String,
     /// Projector id.
@@ -52,6 +54,7 @@ pub struct Cell {
     pub parts: Vec<Part>,
     keep_captures: bool,
     e57: bool,
+    range_mm: Option<[f64; 2]>,
 }
 
 impl Cell {
@@ -68,6 +71,7 @@ impl Cell {
             parts,
             keep_captures: config.storage.keep_captures,
             e57: config.storage.e57,
+            range_mm: config.single_shot.range_mm,
         })
     }
 
@@ -89,6 +93,7 @@ impl Cell {
             part: job.part.and_then(|i| self.parts.get(i)),
             tag: job.tag.as_deref(),
             mode: job.mode,
+            range_mm: self.range_mm,
         };
         scan::run(
             &self.name,
@@ -117,6 +122,7 @@ impl Cell {
                 PairStatus {
                     sensor: p.name.clone(),
                     backend: p.backend.to_string(),
+                    kind: p.kind,
                     camera,
                     projector,
                     driver: p.state.clone(),

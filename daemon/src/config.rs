@@ -121,6 +121,10 @@ impl Default for WorkersSection {
 pub struct SensorSection {
     /// Sensor name (`s1`): the key of its cloud.
     pub name: String,
+    /// `structured-light` (a projector+camera pair; the default) or `omni` (camera and
+    /// projector behind hyperbolic mirrors, SPEC §13: one ring-pattern frame per scan).
+    #[serde(default)]
+    pub kind: Option<String>,
     /// `mock` (simulated pair), `aravis` (GigE Vision), `v4l2` (USB) or `replay` (a recorded
     /// capture set).
     pub backend: String,
@@ -369,11 +373,24 @@ pub enum Backend {
     },
 }
 
+/// What a sensor measures with.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SensorKind {
+    /// A projector+camera pair: Gray codes, the adaptive loop, X-point single shots.
+    #[default]
+    StructuredLight,
+    /// An omnidirectional sensor: every scan and stream frame is one ring-pattern frame.
+    Omni,
+}
+
 /// A validated sensor pair.
 #[derive(Clone, Debug)]
 pub struct SensorConfig {
     /// Name.
     pub name: String,
+    /// What it measures with.
+    pub kind: SensorKind,
     /// Backend.
     pub backend: Backend,
     /// Camera device.
@@ -573,6 +590,26 @@ impl CellConfig {
                 ));
             }
             let scene = s.scene.as_deref().map(resolve);
+            let kind = match s.kind.as_deref() {
+                None | Some("structured-light") => SensorKind::StructuredLight,
+                Some("omni") => SensorKind::Omni,
+                Some(other) => {
+                    return Err(field(
+                        &f("kind"),
+                        format!(
+                            "{:?} is not \"structured-light\" or \"omni\"",
+                            other.chars().take(64).collect::<String>()
+                        ),
+                    ))
+                }
+            };
+            let omni = kind == SensorKind::Omni;
+            if omni && s.backend == "replay" {
+                return Err(field(
+                    &f("backend"),
+                    "an omni sensor is \"mock\", \"aravis\" or \"v4l2\"; replay serves Gray-code recordings".into(),
+                ));
+            }
             let backend = match s.backend.as_str() {
                 "mock" if scene.is_none() => {
                     return Err(field(
@@ -645,16 +682,20 @@ impl CellConfig {
                     "a hardware pair's model is its sensor file, not a scene".into(),
                 ));
             }
-            if s.to_common.is_some() && scene.is_none() {
+            if s.to_common.is_some() && scene.is_none() && !omni {
                 return Err(field(
                     &f("to_common"),
                     "only pairs modelled by a scene take it here; others read [to_common] from the sensor file".into(),
                 ));
             }
-            if scene.is_some() && s.to_common.is_none() {
+            if (scene.is_some() || omni) && s.to_common.is_none() {
                 return Err(field(
                     &f("to_common"),
-                    "a pair modelled by a scene needs its sensor → cell transform".into(),
+                    if omni {
+                        "an omni sensor needs its sensor → cell transform here (its sensor file has none)".into()
+                    } else {
+                        "a pair modelled by a scene needs its sensor → cell transform".into()
+                    },
                 ));
             }
             if let Some(g) = s.gain_db {
@@ -742,6 +783,7 @@ impl CellConfig {
             };
             sensors.push(SensorConfig {
                 name: s.name.clone(),
+                kind,
                 backend,
                 device: s.device.clone(),
                 projector_monitor: s.projector_monitor,
@@ -933,6 +975,20 @@ impl CellConfig {
     /// Check that every referenced file exists and parses (scenes, sensor files, CAD, datums).
     pub fn check_files(&self) -> Result<()> {
         for s in &self.sensors {
+            if s.kind == SensorKind::Omni {
+                match (&s.scene, &s.sensor_file) {
+                    (Some(scene), _) => {
+                        ris_core::omni::scene::OmniScene::load(scene)
+                            .map(|_| ())
+                            .with_context(|| format!("sensor {}: room scene", s.name))?
+                    }
+                    (None, Some(f)) => ris_core::omni::OmniSensor::load(f)
+                        .map(|_| ())
+                        .with_context(|| format!("sensor {}: omni sensor file", s.name))?,
+                    (None, None) => {}
+                }
+                continue;
+            }
             if let Some(scene) = &s.scene {
                 ris_core::sim::Scene::load(scene)
                     .with_context(|| format!("sensor {}: scene", s.name))?;

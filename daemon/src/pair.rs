@@ -8,16 +8,18 @@ use std::time::Instant;
 use anyhow::{anyhow, Context, Result};
 use ris_core::capture::CaptureSet;
 use ris_core::decode::{decode, DecodeParams, Decoded};
+use ris_core::omni::scene::OmniScene;
+use ris_core::omni::OmniSensor;
 use ris_core::pattern::CodeLayout;
 use ris_core::sensor::{ModelChoice, Reconstructor, Sensor};
 use ris_core::sim::{Scene, Simulator};
-use ris_drivers::mock::{replay_pair, simulated_pair, FaultInjector};
+use ris_drivers::mock::{omni_pair, replay_pair, simulated_pair, FaultInjector};
 use ris_drivers::sequence::SequenceParams;
 use ris_drivers::{Camera, CameraSettings, ErrorKind, Projector, ProjectorSettings};
 use serde::Serialize;
 
-use crate::config::{Backend, CellConfig, SensorConfig, SingleShotSection};
-use crate::single_shot::PairSingleShot;
+use crate::config::{Backend, CellConfig, SensorConfig, SensorKind, SingleShotSection};
+use crate::single_shot::{OneShot, PairRings, PairSingleShot};
 
 /// The state of a pair's drivers, as health reports it.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize)]
@@ -40,12 +42,15 @@ pub struct Pair {
     pub group: u32,
     /// Backend name (`mock`, `aravis`, `v4l2`, `replay`).
     pub backend: &'static str,
+    /// What it measures with.
+    pub kind: SensorKind,
     pub(crate) camera: Box<dyn Camera>,
     pub(crate) projector: Box<dyn Projector>,
     /// Fault injection of a simulated pair (tests); `None` for every other backend.
     pub faults: Option<FaultInjector>,
     pub(crate) layout: CodeLayout,
-    pub(crate) reconstructor: Arc<Reconstructor>,
+    /// The Gray-code sensor model (`None`: an omni sensor, which measures one frame only).
+    pub(crate) reconstructor: Option<Arc<Reconstructor>>,
     pub(crate) to_common: nalgebra::Matrix4<f64>,
     /// The decoded reference recording (with row codes) the adaptive loop starts from.
     pub(crate) reference: Option<Arc<Decoded>>,
@@ -55,8 +60,9 @@ pub struct Pair {
     pub(crate) exposure_us: f64,
     /// The drivers' state.
     pub state: DriverState,
-    /// Single-shot scans and streams: the pattern and its decoding, or why this pair cannot.
-    pub(crate) single_shot: std::result::Result<Arc<PairSingleShot>, String>,
+    /// Single-shot scans and streams (every scan of an omni sensor): the pattern and its
+    /// decoding, or why this pair cannot.
+    pub(crate) single_shot: std::result::Result<Arc<OneShot>, String>,
 }
 
 impl Pair {
@@ -114,13 +120,56 @@ impl Pair {
 struct Model {
     layout: CodeLayout,
     camera_size: (u32, u32),
-    reconstructor: Reconstructor,
+    reconstructor: Option<Reconstructor>,
     reference: Option<Decoded>,
     to_common: nalgebra::Matrix4<f64>,
     scene: Option<Scene>,
+    /// An omni sensor: its ring decoding, and the room a mock one renders.
+    omni: Option<(PairRings, Option<OmniScene>)>,
+}
+
+/// The model of an omni sensor: from its room scene (mock) or its sensor file.
+fn omni_model(s: &SensorConfig) -> Result<Model> {
+    let to_common = s
+        .to_common
+        .ok_or_else(|| anyhow!("sensor {}: no to_common", s.name))?;
+    let (sensor, scene) = match (&s.scene, &s.sensor_file) {
+        (Some(path), _) => {
+            if !OmniScene::is_room_scene(path) {
+                return Err(anyhow!(
+                    "sensor {}: {} is not a room scene (an omni sensor's scene has a [room] table)",
+                    s.name,
+                    path.display()
+                ));
+            }
+            let sc =
+                OmniScene::load(path).with_context(|| format!("sensor {}: room scene", s.name))?;
+            (sc.sensor.clone(), Some(sc))
+        }
+        (None, Some(path)) => (
+            OmniSensor::load(path)
+                .with_context(|| format!("sensor {}: omni sensor file", s.name))?,
+            None,
+        ),
+        (None, None) => return Err(anyhow!("sensor {}: no sensor file", s.name)),
+    };
+    let (c, p) = (&sensor.camera.lens, &sensor.projector.lens);
+    let (camera_size, layout) = ((c.width, c.height), CodeLayout::new(p.width, p.height));
+    Ok(Model {
+        layout,
+        camera_size,
+        reconstructor: None,
+        reference: None,
+        to_common,
+        scene: None,
+        omni: Some((PairRings::new(&s.name, sensor)?, scene)),
+    })
 }
 
 fn model(s: &SensorConfig) -> Result<Model> {
+    if s.kind == SensorKind::Omni {
+        return omni_model(s);
+    }
     let params = DecodeParams::default();
     if let Some(scene) = &s.scene {
         let sc = Scene::load(scene).with_context(|| format!("sensor {}: scene", s.name))?;
@@ -136,10 +185,11 @@ fn model(s: &SensorConfig) -> Result<Model> {
         return Ok(Model {
             layout,
             camera_size: (sc.camera.width, sc.camera.height),
-            reconstructor,
+            reconstructor: Some(reconstructor),
             reference: Some(reference),
             to_common,
             scene: Some(sc),
+            omni: None,
         });
     }
     let path = s
@@ -169,10 +219,11 @@ fn model(s: &SensorConfig) -> Result<Model> {
     Ok(Model {
         layout: CodeLayout::new(pw, ph),
         camera_size: (sensor.camera.width, sensor.camera.height),
-        reconstructor,
+        reconstructor: Some(reconstructor),
         reference,
         to_common,
         scene: None,
+        omni: None,
     })
 }
 
@@ -180,13 +231,24 @@ fn model(s: &SensorConfig) -> Result<Model> {
 /// is touched), then the projector, then the camera. `seed` varies simulated noise.
 pub fn open(s: &SensorConfig, single: &SingleShotSection, seed: u64) -> Result<Pair> {
     let t = Instant::now();
-    let m = model(s)?;
+    let mut m = model(s)?;
+    let omni = m.omni.take();
     let (camera, projector, faults, backend): (
         Box<dyn Camera>,
         Box<dyn Projector>,
         Option<FaultInjector>,
         &'static str,
     ) = match &s.backend {
+        Backend::Mock if omni.as_ref().is_some_and(|o| o.1.is_some()) => {
+            let room = omni
+                .as_ref()
+                .and_then(|o| o.1.clone())
+                .unwrap_or_else(|| unreachable!("checked by the match guard"));
+            let (mut cam, proj, faults) = omni_pair(Arc::new(room), &s.name, seed);
+            cam.set_exposure_us(s.exposure_us)
+                .with_context(|| format!("sensor {}: exposure", s.name))?;
+            (Box::new(cam), Box::new(proj), Some(faults), "mock")
+        }
         Backend::Mock => {
             let sc = m
                 .scene
@@ -253,11 +315,19 @@ pub fn open(s: &SensorConfig, single: &SingleShotSection, seed: u64) -> Result<P
         "pair ready"
     );
     let reference = m.reference.map(Arc::new);
-    let single_shot = match &reference {
-        Some(r) => PairSingleShot::new(&s.name, (m.layout.width, m.layout.height), single, r.clone())
-            .map(Arc::new)
-            .map_err(|e| format!("{e:#}")),
-        None => Err(format!(
+    let reconstructor = m.reconstructor.map(Arc::new);
+    let single_shot = match (omni, &reference, &reconstructor) {
+        (Some((rings, _)), _, _) => Ok(Arc::new(OneShot::Rings(rings))),
+        (None, Some(r), Some(rec)) => PairSingleShot::new(
+            &s.name,
+            (m.layout.width, m.layout.height),
+            single,
+            r.clone(),
+            rec.clone(),
+        )
+        .map(|x| Arc::new(OneShot::XPoint(x)))
+        .map_err(|e| format!("{e:#}")),
+        _ => Err(format!(
             "sensor {}: single-shot decoding needs the pair's Gray-code reference recording; its sensor file has no [reference]",
             s.name
         )),
@@ -269,11 +339,12 @@ pub fn open(s: &SensorConfig, single: &SingleShotSection, seed: u64) -> Result<P
         name: s.name.clone(),
         group: s.exposure_group,
         backend,
+        kind: s.kind,
         camera,
         projector,
         faults,
         layout: m.layout,
-        reconstructor: Arc::new(m.reconstructor),
+        reconstructor,
         to_common: m.to_common,
         reference,
         sequence: SequenceParams {

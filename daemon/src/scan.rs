@@ -25,8 +25,9 @@ use ris_drivers::Slide;
 use serde::Serialize;
 
 use crate::config::PartConfig;
+use crate::config::SensorKind;
 pub use crate::pair::Pair;
-use crate::single_shot::PairSingleShot;
+use crate::single_shot::OneShot;
 
 /// Radius (mm) within which points of different sensors are duplicates in the merge.
 const MERGE_RADIUS: f64 = 0.5;
@@ -240,6 +241,9 @@ pub struct ScanOptions<'a> {
     pub tag: Option<&'a str>,
     /// How the pairs acquire.
     pub mode: ScanMode,
+    /// Distances drawn red and blue in the pictures of one-frame measurements (the cell's
+    /// `[single_shot] range_mm`; `None`: each frame's own spread).
+    pub range_mm: Option<[f64; 2]>,
 }
 
 /// Scan with the pairs `options` selects and write the result into
@@ -335,9 +339,9 @@ fn scan_into(
     let (tx, rx) = mpsc::sync_channel::<(usize, CaptureSet)>(pairs.len().max(1));
     type PairCompute = (
         String,
-        Arc<Reconstructor>,
+        Option<Arc<Reconstructor>>,
         nalgebra::Matrix4<f64>,
-        Option<Arc<PairSingleShot>>,
+        Option<Arc<OneShot>>,
     );
     let recs: Vec<PairCompute> = pairs
         .iter()
@@ -391,19 +395,30 @@ fn scan_into(
                     sensor: name.clone(),
                 });
                 let c0 = secs();
-                let (cloud, c1) = if options.mode == ScanMode::SingleShot {
-                    let single = single.as_ref().ok_or_else(|| {
-                        anyhow!("sensor {name}: no single-shot set-up")
-                    })?;
-                    let image = capture.frame(Pattern::White).ok_or_else(|| {
-                        anyhow!("sensor {name}: the single-shot frame is missing")
-                    })?;
-                    let f = single
-                        .cloud(image, rec)
-                        .with_context(|| format!("sensor {name}: single-shot decoding"))?;
-                    tracing::debug!(sensor = %name, detected = f.detected, stats = ?f.stats, "single-shot frame");
+                // One frame: a single-shot scan, or any scan of an omni sensor.
+                let one = single
+                    .as_ref()
+                    .filter(|o| options.mode == ScanMode::SingleShot || o.is_omni());
+                let (cloud, c1) = if let Some(one) = one {
+                    let image = capture
+                        .frame(Pattern::White)
+                        .ok_or_else(|| anyhow!("sensor {name}: the single frame is missing"))?;
+                    let f = one
+                        .measure(image)
+                        .with_context(|| format!("sensor {name}: decoding its one frame"))?;
+                    // What an operator looks at: the fusion image, or an omni sensor's panorama.
+                    let (png, _) = one
+                        .picture(image, &f, options.range_mm)
+                        .with_context(|| format!("sensor {name}: its picture"))?;
+                    ris_core::io::write_atomic(&dir.join(format!("{name}.png")), &png)
+                        .with_context(|| format!("writing the picture of {name}"))?;
                     (f.cloud, c0 + f.decode_s)
+                } else if options.mode == ScanMode::SingleShot {
+                    return Err(anyhow!("sensor {name}: no single-shot set-up"));
                 } else {
+                    let rec = rec
+                        .as_ref()
+                        .ok_or_else(|| anyhow!("sensor {name}: no Gray-code sensor model"))?;
                     let decoded = decode(&capture, &DecodeParams::default())
                         .with_context(|| format!("sensor {name}: decoding"))?;
                     let c1 = secs();
@@ -587,9 +602,15 @@ fn acquire_pair(
     state: &(dyn Fn(&ScanState) + Sync),
 ) -> Result<Recorded> {
     let name = p.name.clone();
+    // An omni sensor takes its one ring frame whatever the scan's mode.
+    let mode = if p.kind == SensorKind::Omni {
+        ScanMode::SingleShot
+    } else {
+        mode
+    };
     match mode {
         ScanMode::Gray | ScanMode::SingleShot => {
-            // The Gray sequence with inverses, or the pair's one X-point slide.
+            // The Gray sequence with inverses, or the pair's one X-point or ring slide.
             let slides: Vec<Slide> = if mode == ScanMode::Gray {
                 p.layout
                     .sequence(true)
@@ -598,7 +619,7 @@ fn acquire_pair(
                     .collect()
             } else {
                 let single = p.single_shot.clone().map_err(|why| anyhow!(why))?;
-                vec![single.slide.clone()]
+                vec![single.slide().clone()]
             };
             let acq = acquire(
                 &mut *p.camera,

@@ -14,7 +14,6 @@ use anyhow::{anyhow, Context, Result};
 use ris_core::cloud::PointCloud;
 use ris_core::image::GrayImage;
 use ris_core::pattern::Pattern;
-use ris_core::single_shot::{fuse, FusionRange};
 use ris_drivers::Slide;
 use serde::{Deserialize, Serialize};
 use zenoh::qos::CongestionControl;
@@ -459,10 +458,10 @@ fn stream<J>(
     for &i in &chosen {
         let p = &mut cell.pairs[i];
         let single = p.single_shot.clone().map_err(|why| anyhow!(why))?;
-        let slides = [single.slide.clone(), Slide::plain(Pattern::Black)];
+        let slides = [single.slide().clone(), Slide::plain(Pattern::Black)];
         p.projector
             .load(&slides)
-            .with_context(|| format!("sensor {}: loading the X-point pattern", p.name))?;
+            .with_context(|| format!("sensor {}: loading its single-shot pattern", p.name))?;
         p.projector
             .show(usize::from(groups.len() > 1))
             .with_context(|| format!("sensor {}: projecting", p.name))?;
@@ -484,7 +483,6 @@ fn stream<J>(
             let p = &cell.pairs[i];
             (
                 p.name.clone(),
-                p.reconstructor.clone(),
                 p.to_common,
                 p.single_shot.clone().map_err(|why| anyhow!(why)),
             )
@@ -609,29 +607,23 @@ fn grab(p: &mut crate::pair::Pair) -> Result<GrayImage> {
 
 type Computer = (
     String,
-    Arc<ris_core::sensor::Reconstructor>,
     nalgebra::Matrix4<f64>,
-    Result<Arc<crate::single_shot::PairSingleShot>>,
+    Result<Arc<crate::single_shot::OneShot>>,
 );
 
-/// Compute one frame and publish its cloud (cell frame, binary PLY) and fusion picture (PNG),
-/// each with the attachment `{"frame", "timestamp_ns", "points", "latency_ms"}`.
+/// Compute one frame and publish its cloud (cell frame, binary PLY) and picture (PNG: the
+/// fusion image, or an omni sensor's panorama), each with the attachment `{"frame",
+/// "timestamp_ns", "points", "latency_ms", "range_mm"}`.
 fn publish_frame(
-    (name, rec, to_common, single): &Computer,
+    (name, to_common, single): &Computer,
     c: Captured,
     generation: u64,
     control: &StreamControl,
     out: &Publish,
 ) -> Result<()> {
     let single = single.as_ref().map_err(|e| anyhow!("{e:#}"))?;
-    let f = single.cloud(&c.image, rec)?;
-    let centre = rec.camera().center();
-    let eye = [centre.x, centre.y, centre.z];
-    let range = match out.config.range_mm {
-        Some([near, far]) => FusionRange::new(near, far, "[single_shot] range_mm")?,
-        None => FusionRange::covering(&f.cloud, eye),
-    };
-    let picture = fuse(&c.image, &f.cloud, eye, range, None)?.png()?;
+    let f = single.measure(&c.image)?;
+    let (picture, range) = single.picture(&c.image, &f, out.config.range_mm)?;
     let mut cloud = f.cloud;
     for p in cloud.points.iter_mut() {
         let v = to_common

@@ -28,6 +28,9 @@ fn reference_and_mock_cell_configs_parse() {
         .iter()
         .all(|s| s.backend == ris_daemon::config::Backend::Aravis));
     v.check_files().expect("virtual cell files");
+    let o = CellConfig::load(&config_dir().join("omni-cell.toml")).expect("omni-cell.toml");
+    assert_eq!(o.sensors[0].kind, ris_daemon::config::SensorKind::Omni);
+    o.check_files().expect("omni cell files");
     let r = CellConfig::load(&config_dir().join("replay-cell.toml")).expect("replay-cell.toml");
     assert!(r
         .sensors
@@ -84,6 +87,15 @@ fn config_errors_name_the_field() {
             "sensor[0].trigger",
         ),
         (&format!("{ok}trigger = \"hardware\"\n"), "sensor[0].trigger"),
+        (&format!("{ok}kind = \"lidar\"\n"), "sensor[0].kind"),
+        (
+            "[cell]\nname = \"c\"\n[[sensor]]\nname = \"o\"\nkind = \"omni\"\nbackend = \"replay\"\nrecording = \"r\"\n",
+            "sensor[0].backend",
+        ),
+        (
+            &format!("{aravis}projector_monitor = 1\nkind = \"omni\"\n"),
+            "sensor[0].to_common",
+        ),
         (&format!("{ok}trigger_line = \"Line1\"\n"), "sensor[0].trigger_line"),
         (
             &format!("{aravis}projector_monitor = 1\ntrigger = \"hardware\"\ntrigger_line = \"\"\n"),

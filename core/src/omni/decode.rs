@@ -82,13 +82,16 @@ pub struct RingDecode {
     pub decode_s: f64,
     /// Seconds spent triangulating.
     pub reconstruct_s: f64,
+    /// The camera image's size (width, height).
+    pub image: [u32; 2],
 }
 
 impl RingDecode {
     /// The points as a cloud (sensor frame, mm) with `ring`, `fit` (the share of its arc's
     /// brightness the ring leaves unexplained), the camera pixel (`u`, `v`) and `azimuth`
     /// (degrees) per point, and the amplitude as confidence (scaled to 0 … 1 by the
-    /// brightest).
+    /// brightest); organised by the pixel nearest each crossing, so pixel queries and E57
+    /// rows and columns work as for any pair.
     pub fn cloud(&self) -> PointCloud {
         let top = self
             .points
@@ -98,6 +101,8 @@ impl RingDecode {
         PointCloud {
             points: self.points.iter().map(|p| p.point).collect(),
             confidence: self.points.iter().map(|p| p.amplitude / top).collect(),
+            pixels: self.points.iter().map(|p| self.pixel_index(p)).collect(),
+            image: Some(self.image),
             scalars: vec![
                 Scalar {
                     name: "ring".into(),
@@ -126,6 +131,16 @@ impl RingDecode {
             ],
             ..PointCloud::default()
         }
+    }
+}
+
+impl RingDecode {
+    /// Row-major index of the camera pixel nearest `p`'s crossing.
+    fn pixel_index(&self, p: &RingPoint) -> u32 {
+        let [w, h] = self.image;
+        let x = (p.pixel[0].round().max(0.0) as u32).min(w.saturating_sub(1));
+        let y = (p.pixel[1].round().max(0.0) as u32).min(h.saturating_sub(1));
+        y * w + x
     }
 }
 
@@ -547,6 +562,7 @@ impl RingDecoder {
             arcs_named: named.len(),
             decode_s,
             reconstruct_s: start.elapsed().as_secs_f64(),
+            image: [image.width, image.height],
         })
     }
 

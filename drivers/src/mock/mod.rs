@@ -1,5 +1,6 @@
 //! The mock backend: a projector and camera pair driven by the simulator (the camera renders
-//! what the projector currently shows, with the scene's materials), or by a recorded capture
+//! what the projector currently shows, with the scene's materials), by the room renderer of an
+//! omnidirectional sensor (camera and projector behind their mirrors), or by a recorded capture
 //! set (replay), with injectable faults so tests can prove the sequencer copes with them.
 
 mod faults;
@@ -11,6 +12,7 @@ use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use ris_core::capture::CaptureSet;
+use ris_core::omni::scene::OmniScene;
 use ris_core::pattern::CodeLayout;
 use ris_core::sim::Simulator;
 
@@ -26,6 +28,7 @@ pub const NOMINAL_EXPOSURE_US: f64 = 10_000.0;
 /// What the mock camera sees.
 enum Source {
     Sim(Arc<Simulator>),
+    Omni(Arc<OmniScene>),
     Replay(Arc<CaptureSet>),
 }
 
@@ -93,6 +96,20 @@ pub fn simulated_pair(
     pair(Source::Sim(sim), layout, (w, h), id, seed)
 }
 
+/// An omnidirectional pair: its camera renders `scene`'s room, seen through the camera's
+/// mirror and lit through the projector's mirror by whatever the projector shows. `seed`
+/// varies the noise between pairs and frames.
+pub fn omni_pair(
+    scene: Arc<OmniScene>,
+    id: &str,
+    seed: u64,
+) -> (MockCamera, MockProjector, FaultInjector) {
+    let (c, p) = (&scene.sensor.camera.lens, &scene.sensor.projector.lens);
+    let layout = CodeLayout::new(p.width, p.height);
+    let size = (c.width, c.height);
+    pair(Source::Omni(scene), layout, size, id, seed)
+}
+
 /// A pair whose camera serves the recorded frame of whatever pattern the projector shows
 /// (masks and exposure are ignored: the recording is what it is).
 pub fn replay_pair(
@@ -143,6 +160,7 @@ fn pair(
             id: format!("{id}/camera"),
             model: match shared.source {
                 Source::Sim(_) => "RIS simulated camera".into(),
+                Source::Omni(_) => "RIS simulated omnidirectional camera".into(),
                 Source::Replay(_) => "RIS replay camera".into(),
             },
             width,
@@ -262,6 +280,22 @@ fn expose(shared: &Shared, st: &mut State, camera: &str) -> Result<()> {
                     seed,
                 )
             }
+        }
+        Source::Omni(scene) => {
+            let gain = 10f64.powf(st.gain_db / 20.0);
+            let exposure = ris_core::omni::Exposure {
+                gain: scene.exposure.gain * st.exposure_us / NOMINAL_EXPOSURE_US * gain,
+                seed: shared
+                    .seed
+                    .wrapping_mul(1_000_003)
+                    .wrapping_add(id)
+                    .wrapping_add(scene.exposure.seed),
+                ..scene.exposure
+            };
+            let picture = slide.render(&shared.layout);
+            ris_core::omni::render(&scene.sensor, &scene.room, &picture, &exposure)
+                .map_err(|e| err(ErrorKind::Failed, format!("rendering the room: {e}")))?
+                .0
         }
         Source::Replay(set) => set.frame(slide.pattern).cloned().ok_or_else(|| {
             err(

@@ -317,7 +317,7 @@ pub fn open(s: &SensorConfig, single: &SingleShotSection, seed: u64) -> Result<P
     let reference = m.reference.map(Arc::new);
     let reconstructor = m.reconstructor.map(Arc::new);
     let single_shot = match (omni, &reference, &reconstructor) {
-        (Some((rings, _)), _, _) => Ok(Arc::new(OneShot::Rings(rings))),
+        (Some((rings, _)), _, _) => Ok(Arc::new(OneShot::Rings(Box::new(rings)))),
         (None, Some(r), Some(rec)) => PairSingleShot::new(
             &s.name,
             (m.layout.width, m.layout.height),

@@ -86,7 +86,7 @@ pub enum OneShot {
     /// The X-point pattern of a structured-light pair.
     XPoint(PairSingleShot),
     /// The ring pattern of an omnidirectional sensor.
-    Rings(PairRings),
+    Rings(Box<PairRings>),
 }
 
 /// One frame's cloud (sensor frame, mm) and what made it.

@@ -1,9 +1,11 @@
 //! Vector (look-up table) calibration of the omnidirectional sensor (Eq. 6.1–6.6): a reference
 //! target with markers, seen at two known positions, gives every camera pixel two points of
 //! its ray; the projector's Gray codes on the same target give every projector pixel two
-//! points of its. Rays are stored per pixel (SPEC §13); where the target was not seen at both
-//! positions the table says NaN, so a calibrated sensor does not pretend to know rays it never
-//! measured.
+//! points of its. Each unit's mirror model is fitted to all of them (`fit`), and the rays are
+//! stored per pixel from the fitted model (SPEC §13); a unit the model does not fit keeps the
+//! rays through each pixel's own two points. Outside the band of image radii where the target
+//! was seen at both positions the table says NaN, so a calibrated sensor does not pretend to
+//! know rays it never measured.
 //!
 //! The target is a cylinder coaxial with the sensor (inside it, seen from within), printed with
 //! dark dots on a (φ, z) grid: azimuth step `step_deg`, height step the same arc length at the
@@ -16,6 +18,7 @@ use std::path::{Path, PathBuf};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use super::fit::{fit_unit, UnitFit, MAX_RMS_PX};
 use super::lut::{pack, RayTable};
 use super::render::{gaussian, Exposure};
 use super::{OmniFile, OmniSensor, Ray};
@@ -328,6 +331,10 @@ pub struct CalibrationReport {
     pub camera_pixels: [usize; 2],
     /// Projector pixels with a ray, of those the mirror fills (nominally).
     pub projector_pixels: [usize; 2],
+    /// The camera's model fitted to the dots.
+    pub camera_fit: UnitFit,
+    /// The projector's model fitted to the coded target points.
+    pub projector_fit: UnitFit,
 }
 
 /// A calibrated sensor: the file (nominal units with the `[lut]` names), the two tables.
@@ -364,10 +371,11 @@ pub fn calibrate(dir: &Path) -> Result<Calibration> {
     let mut plain = nominal_file.clone();
     plain.lut = None;
     let nominal = OmniSensor::from_file(&plain, dir, &nominal_path.display().to_string())?;
-    let cam = &nominal.camera;
-    let (w, h) = (cam.lens.width as usize, cam.lens.height as usize);
-    let mut targets: Vec<Vec<Option<Vec3>>> = Vec::new();
-    let mut dots = Vec::new();
+    let (w, h) = (
+        nominal.camera.lens.width as usize,
+        nominal.camera.lens.height as usize,
+    );
+    let mut images = Vec::new();
     for pos in &session.position {
         let at = dir.join(&pos.name);
         let image = GrayImage::load(&at.join("markers.png"))?;
@@ -378,10 +386,62 @@ pub fn calibrate(dir: &Path) -> Result<Calibration> {
                 format!("{}x{} for a {w}x{h} camera", image.width, image.height),
             ));
         }
-        let (grid, found, expected) = find_dots(&nominal, pos, &session.markers, &image);
-        dots.push([found, expected]);
-        targets.push(target_points(&nominal, pos, &session.markers, &grid, w, h));
+        images.push(image);
     }
+    // The dots, where the current model predicts them; the camera's model fitted to every dot
+    // found; again with the fitted model (it finds the dots the drawn one placed too far off),
+    // while that finds more.
+    let mut placed = nominal.clone();
+    let mut camera_fit = UnitFit::default();
+    let mut grids = Vec::new();
+    let mut dots: Vec<[usize; 2]> = Vec::new();
+    for _round in 0..4 {
+        let mut round_grids = Vec::new();
+        let mut round_dots = Vec::new();
+        let mut seen: Vec<([f64; 2], Vec3)> = Vec::new();
+        for (pos, image) in session.position.iter().zip(&images) {
+            let (grid, found, expected) = find_dots(&placed, pos, &session.markers, image);
+            round_dots.push([found, expected]);
+            let (step, dz) = (
+                session.markers.step_deg.to_radians(),
+                pos.step_z(&session.markers),
+            );
+            let (first, _) = pos.rows(&session.markers);
+            for (i, col) in grid.iter().enumerate() {
+                for (j, p) in col.iter().enumerate() {
+                    if let Some(p) = p {
+                        seen.push((
+                            *p,
+                            pos.point(i as f64 * step, (first + j as i64) as f64 * dz),
+                        ));
+                    }
+                }
+            }
+            round_grids.push(grid);
+        }
+        let more = |a: &[[usize; 2]], b: &[[usize; 2]]| {
+            a.iter().map(|d| d[0]).sum::<usize>() > b.iter().map(|d| d[0]).sum::<usize>()
+        };
+        if !grids.is_empty() && !more(&round_dots, &dots) {
+            break;
+        }
+        grids = round_grids;
+        dots = round_dots;
+        let (fitted, fit) = fit_unit(&nominal.camera, &seen);
+        camera_fit = fit;
+        // A rough fit still predicts the dots better than the drawn model did.
+        if camera_fit.rms_px > 2.0 * MAX_RMS_PX {
+            break;
+        }
+        placed.camera = fitted;
+    }
+    let cam = &placed.camera;
+    let targets: Vec<Vec<Option<Vec3>>> = session
+        .position
+        .iter()
+        .zip(&grids)
+        .map(|(pos, grid)| target_points(&placed, pos, &session.markers, grid, w, h))
+        .collect();
     // Camera rays through the two target points of each pixel.
     let camera_rays: Vec<[f32; 6]> = (0..w * h)
         .into_par_iter()
@@ -392,7 +452,11 @@ pub fn calibrate(dir: &Path) -> Result<Calibration> {
         .collect();
     let far = usize::from(session.position[1].radius > session.position[0].radius);
     let centre = cam.axis_pixel().unwrap_or((w as f64 / 2.0, h as f64 / 2.0));
-    let camera_rays = steady(camera_rays, &targets[far], w, centre);
+    let camera_rays = if camera_fit.used {
+        model_rays(cam, &camera_rays, w, centre)
+    } else {
+        steady(camera_rays, &targets[far], w, centre)
+    };
     let mirror_pixels = |unit: &super::MirrorUnit| {
         let (uw, uh) = (unit.lens.width, unit.lens.height);
         (0..uw * uh)
@@ -409,9 +473,10 @@ pub fn calibrate(dir: &Path) -> Result<Calibration> {
         rays: camera_rays,
     };
     // Projector: the Gray codes name the projector pixel each camera pixel sees on the target.
-    let proj = &nominal.projector;
+    let proj = &placed.projector;
     let (pw, ph) = (proj.lens.width as usize, proj.lens.height as usize);
     let mut per_position: Vec<Vec<[f32; 3]>> = Vec::new();
+    let mut coded: Vec<([f64; 2], Vec3)> = Vec::new();
     for (k, pos) in session.position.iter().enumerate() {
         let gray = dir.join(&pos.name).join("gray");
         let capture = CaptureSet::load(&gray)?;
@@ -440,9 +505,44 @@ pub fn calibrate(dir: &Path) -> Result<Calibration> {
                 (c.is_finite() && r.is_finite()).then_some(([f64::from(c), f64::from(r)], p))
             })
             .collect();
+        // For the projector's model: where the fitted camera's ray of every other pixel (each
+        // way) meets the target, paired with the projector pixel its codes name. With a
+        // fitted camera these points carry no interpolation between dots.
+        if camera_fit.used {
+            let pos = &session.position[k];
+            coded.extend((0..w * h).filter_map(|i| {
+                let (u, v) = (i % w, i / w);
+                let (c, r) = (decoded.col[i], rows[i]);
+                if u % 2 != 0
+                    || v % 2 != 0
+                    || targets[k][i].is_none()
+                    || !(c.is_finite() && r.is_finite())
+                {
+                    return None;
+                }
+                let ray = cam.back_project(u as f64, v as f64)?;
+                let (_, _, p) = pos.hit(&ray)?;
+                Some(([f64::from(c), f64::from(r)], p))
+            }));
+        }
         let grid = local_affine(&samples, pw, ph);
         per_position.push(grid);
     }
+    // Without a camera model: the projector's model fitted to the coded target points of every
+    // third projector pixel each way.
+    if !camera_fit.used {
+        coded = per_position
+            .iter()
+            .flat_map(|grid| {
+                grid.iter().enumerate().filter_map(|(i, p)| {
+                    let (u, v) = (i % pw, i / pw);
+                    (u % 3 == 0 && v % 3 == 0 && p[0].is_finite())
+                        .then(|| ([u as f64, v as f64], vec3(*p)))
+                })
+            })
+            .collect();
+    }
+    let (fitted_projector, projector_fit) = fit_unit(proj, &coded);
     let projector_rays: Vec<[f32; 6]> = (0..pw * ph)
         .into_par_iter()
         .map(|i| {
@@ -460,13 +560,24 @@ pub fn calibrate(dir: &Path) -> Result<Calibration> {
     let centre = proj
         .axis_pixel()
         .unwrap_or((pw as f64 / 2.0, ph as f64 / 2.0));
-    let projector_rays = steady(projector_rays, &far_points, pw, centre);
+    let projector_rays = if projector_fit.used {
+        let centre = fitted_projector.axis_pixel().unwrap_or(centre);
+        model_rays(&fitted_projector, &projector_rays, pw, centre)
+    } else {
+        steady(projector_rays, &far_points, pw, centre)
+    };
     let projector = RayTable {
         width: pw as u32,
         height: ph as u32,
         rays: projector_rays,
     };
     let mut file = nominal_file;
+    if camera_fit.used {
+        set_unit(&mut file.camera, cam);
+    }
+    if projector_fit.used {
+        set_unit(&mut file.projector, &fitted_projector);
+    }
     file.lut = Some(super::file::LutSection {
         camera: PathBuf::from("cam_rays.npy"),
         projector: PathBuf::from("proj_rays.npy"),
@@ -475,6 +586,8 @@ pub fn calibrate(dir: &Path) -> Result<Calibration> {
         dots,
         camera_pixels: [camera.known(), mirror_pixels(cam)],
         projector_pixels: [projector.known(), mirror_pixels(proj)],
+        camera_fit,
+        projector_fit,
     };
     Ok(Calibration {
         file,
@@ -482,6 +595,48 @@ pub fn calibrate(dir: &Path) -> Result<Calibration> {
         projector,
         report,
     })
+}
+
+/// Rays of the fitted `unit` for the pixels whose image radius about `centre` lies within the
+/// band where the session measured rays (`measured`, NaN elsewhere): the model is trusted
+/// where the target confirmed it, not beyond, so pixels outside the band stay NaN.
+fn model_rays(
+    unit: &super::MirrorUnit,
+    measured: &[[f32; 6]],
+    w: usize,
+    centre: (f64, f64),
+) -> Vec<[f32; 6]> {
+    let radius = |i: usize| ((i % w) as f64 - centre.0).hypot((i / w) as f64 - centre.1);
+    let (lo, hi) = measured
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| r[0].is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), (i, _)| {
+            (lo.min(radius(i)), hi.max(radius(i)))
+        });
+    (0..measured.len())
+        .into_par_iter()
+        .map(|i| {
+            let r = radius(i);
+            if !(r >= lo && r <= hi) {
+                return [f32::NAN; 6];
+            }
+            unit.back_project((i % w) as f64, (i / w) as f64)
+                .map_or([f32::NAN; 6], |ray| pack(&ray))
+        })
+        .collect()
+}
+
+/// Write `unit`'s fitted parameters (intrinsics, mirror `a`, pose) into its file section.
+fn set_unit(section: &mut super::file::UnitSection, unit: &super::MirrorUnit) {
+    for r in 0..3 {
+        for c in 0..3 {
+            section.k[r][c] = unit.lens.k[(r, c)];
+            section.mirror.r[r][c] = unit.r[(r, c)];
+        }
+    }
+    section.mirror.a = unit.mirror.a;
+    section.mirror.t = [unit.t.x, unit.t.y, unit.t.z];
 }
 
 /// The ray from target point `a` (nearer) through `b`, its origin where it passes nearest the
@@ -1009,14 +1164,55 @@ mod tests {
         v[v.len() / 2]
     }
 
+    /// The seed's sensor as built, not as drawn: each unit's mirror shifted and tilted, its
+    /// lens' focal lengths and principal point off, its mirror's `a` off.
+    fn as_built(nominal: &OmniFile, k: u64) -> OmniFile {
+        let mut s = 0x9e37_79b9_7f4a_7c15u64.wrapping_mul(k + 1);
+        let mut next = move |scale: f64| {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((s >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0) * scale
+        };
+        let mut f = nominal.clone();
+        for unit in [&mut f.camera, &mut f.projector] {
+            for t in unit.mirror.t.iter_mut() {
+                *t += next(1.0);
+            }
+            let turn = nalgebra::Rotation3::new(Vec3::new(next(0.005), next(0.005), next(0.01)));
+            let r = crate::geometry::Mat3::from_fn(|i, j| unit.mirror.r[i][j]) * turn.matrix();
+            for i in 0..3 {
+                for j in 0..3 {
+                    unit.mirror.r[i][j] = r[(i, j)];
+                }
+            }
+            unit.k[0][0] *= 1.0 + next(0.01);
+            unit.k[1][1] = unit.k[0][0] * (1.0 + next(0.002));
+            unit.k[0][2] += next(3.0);
+            unit.k[1][2] += next(3.0);
+            unit.mirror.a += next(0.3);
+        }
+        f
+    }
+
     #[test]
-    fn a_two_position_session_recovers_the_rays_to_a_tenth_of_a_degree_where_it_saw_them() {
-        let dir = tempfile::tempdir().expect("tmp");
-        let truth = OmniSensor::load(&seed_file()).expect("seed");
+    fn sessions_of_as_built_sensors_recover_their_rays_and_rooms() {
         let nominal: OmniFile = read_toml(&seed_file()).expect("seed file");
+        for k in 1..=2 {
+            calibrate_as_built(&nominal, k);
+        }
+    }
+
+    /// Simulate a session of the sensor as built (seed `k`), calibrate it from the drawn file,
+    /// and hold its rays and a room decoded with its tables against the truth.
+    fn calibrate_as_built(nominal: &OmniFile, k: u64) {
+        let dir = tempfile::tempdir().expect("tmp");
+        let built = as_built(nominal, k);
+        let truth = OmniSensor::from_file(&built, dir.path(), "as built").expect("as built");
+        let drawn = OmniSensor::from_file(nominal, dir.path(), "nominal").expect("nominal");
         simulate_session(
             &truth,
-            &nominal,
+            nominal,
             &session(),
             &Exposure::default(),
             dir.path(),
@@ -1024,11 +1220,19 @@ mod tests {
         .expect("session");
         let mut tall = session();
         tall.position[1].z = [-1e9, 1e9];
-        let e = simulate_session(&truth, &nominal, &tall, &Exposure::default(), dir.path())
+        let e = simulate_session(&truth, nominal, &tall, &Exposure::default(), dir.path())
             .expect_err("an unbounded target");
         assert!(e.to_string().contains("position[1]"), "{e}");
         let cal = calibrate(dir.path()).expect("calibrate");
-        eprintln!("{:?}", cal.report);
+        eprintln!("as built {k}: {:?}", cal.report);
+        // Both models fit the dots and the codes to their noise: the drawn file missed them
+        // by pixels.
+        for fit in [&cal.report.camera_fit, &cal.report.projector_fit] {
+            assert!(
+                fit.used && fit.rms_px < 0.25 && fit.nominal_rms_px > 1.0,
+                "as built {k}: {fit:?}"
+            );
+        }
         for [found, expected] in &cal.report.dots {
             assert!(
                 *found as f64 > 0.5 * *expected as f64,
@@ -1058,17 +1262,18 @@ mod tests {
             angles.push((a[a.len() / 2], a[a.len() * 99 / 100], a.len()));
         }
         eprintln!(
-            "ray angles (median, p99, n): camera {:?}, projector {:?}",
+            "as built {k}: ray angles (median, p99, n): camera {:?}, projector {:?}",
             angles[0], angles[1]
         );
+        // Measured (two as-built sensors): camera 0.003° median, projector 0.008° and 0.015°.
         assert!(
-            angles[0].0 < 0.05 && angles[0].1 < 0.25,
-            "camera {:?}",
+            angles[0].0 < 0.01 && angles[0].1 < 0.05,
+            "as built {k}: camera {:?}",
             angles[0]
         );
         assert!(
-            angles[1].0 < 0.1 && angles[1].1 < 0.5,
-            "projector {:?}",
+            angles[1].0 < 0.025 && angles[1].1 < 0.05,
+            "as built {k}: projector {:?}",
             angles[1]
         );
         // Only where both positions saw the target: the rest says NaN.
@@ -1095,22 +1300,33 @@ mod tests {
         };
         let model = room_errors(&truth, &truth, &room);
         let table = room_errors(&truth, &calibrated, &room);
+        let drawn = room_errors(&truth, &drawn, &room);
         // On the crossings both decoded (the table covers what the target covered).
         let both: Vec<&(u32, u32)> = table.keys().filter(|k| model.contains_key(k)).collect();
         let m = median(both.iter().map(|k| model[k]).collect());
         let t = median(both.iter().map(|k| table[k]).collect());
+        let d = median(drawn.values().copied().collect());
         eprintln!(
-            "room median |error| on {} common crossings: model {m:.1} mm, table {t:.1} mm ({} model, {} table points)",
+            "as built {k}: room median |error| on {} common crossings: model {m:.1} mm, table {t:.1} mm ({} model, {} table points); the drawn file {d:.1} mm ({} points)",
             both.len(),
             model.len(),
-            table.len()
+            table.len(),
+            drawn.len()
         );
-        // Measured: 8 800 common crossings, model 6.6 mm, table 22 mm. The issue asks for the
-        // table within 20 % of the model; rays within 0.03° (camera) and 0.07° (projector) of
-        // the truth still triple the depth error at 3 m over a 300 mm baseline, so that
-        // criterion is not met; these bounds hold what is.
-        assert!(both.len() > 8000, "{} common crossings", both.len());
-        assert!(t < 35.0, "table {t:.1} mm against the model's {m:.1} mm");
-        assert!(t < 4.0 * m, "table {t:.1} mm against the model's {m:.1} mm");
+        // Measured: model 7.1 / 6.7 mm, table 10.5 / 11.9 mm, the drawn file 560 / 400 mm. The issue
+        // asks for the table within 20 % of the model; the Gray codes on this geometry place
+        // the projector pixels 0.026 px towards the axis (measured against the truth with the
+        // true camera rays), which pulls the projector's focal length and mirror `a` along
+        // their shared valley: 0.008° of ray, 50 % more depth error at 3 m. Not met; these
+        // bounds hold what is.
+        assert!(
+            both.len() > 12_000,
+            "as built {k}: {} common crossings",
+            both.len()
+        );
+        assert!(
+            t < 15.0 && t < 2.2 * m && d > 10.0 * m,
+            "as built {k}: table {t:.1} mm, model {m:.1} mm, drawn file {d:.1} mm"
+        );
     }
 }

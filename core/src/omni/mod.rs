@@ -5,6 +5,7 @@ pub mod analysis;
 pub mod calibrate;
 pub mod decode;
 pub mod file;
+pub mod fit;
 pub mod lut;
 pub mod mirror;
 pub mod panorama;

@@ -357,8 +357,22 @@ pub fn omni(session: &Path, out: &Path) -> Result<()> {
             k + 1
         );
     }
+    for (unit, f) in [("camera", &r.camera_fit), ("projector", &r.projector_fit)] {
+        if f.used {
+            println!(
+                "{unit}: model fitted to {} of {} observations: {:.2} px RMS ({:.2} px at 95 %; the drawn file {:.2} px), mirror moved {:.2} mm and turned {:.2}°",
+                f.observations[0], f.observations[1], f.rms_px, f.p95_px, f.nominal_rms_px, f.moved_mm, f.turned_deg
+            );
+        } else {
+            println!(
+                "{unit}: the mirror model does not fit its observations ({:.2} px RMS, more than {} px): its rays are each pixel's own two target points, noisier",
+                f.rms_px,
+                ris_core::omni::fit::MAX_RMS_PX
+            );
+        }
+    }
     println!(
-        "camera rays for {} of {} mirror pixels, projector rays for {} of {} (the rest: not seen at both positions, NaN) -> {}",
+        "camera rays for {} of {} mirror pixels, projector rays for {} of {} (the rest: outside the band of image radii the target covered at both positions, NaN) -> {}",
         r.camera_pixels[0], r.camera_pixels[1], r.projector_pixels[0], r.projector_pixels[1], out.display()
     );
     Ok(())

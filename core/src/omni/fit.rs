@@ -64,22 +64,26 @@ fn residual(unit: &MirrorUnit, obs: &([f64; 2], Vec3)) -> [f64; 2] {
     }
 }
 
-fn cost(unit: &MirrorUnit, obs: &[([f64; 2], Vec3)]) -> f64 {
+/// Cauchy cost of the residuals with scale `c` px (`None`: least squares): an observation
+/// many scales off (a dot taken for its neighbour) weighs little.
+fn cost(unit: &MirrorUnit, obs: &[([f64; 2], Vec3)], c: Option<f64>) -> f64 {
     obs.par_iter()
         .map(|o| {
             let r = residual(unit, o);
-            r[0] * r[0] + r[1] * r[1]
+            let s = r[0] * r[0] + r[1] * r[1];
+            c.map_or(s, |c| c * c * (s / (c * c)).ln_1p())
         })
         .sum()
 }
 
-/// One Levenberg–Marquardt solve from `nominal` over `obs`; the parameter increments.
-fn solve(nominal: &MirrorUnit, obs: &[([f64; 2], Vec3)]) -> SVector<f64, P> {
+/// One Levenberg–Marquardt solve from `nominal` over `obs` (robust with Cauchy scale `c`, by
+/// reweighting each iteration); the parameter increments.
+fn solve(nominal: &MirrorUnit, obs: &[([f64; 2], Vec3)], c: Option<f64>) -> SVector<f64, P> {
     let steps: [f64; P] = [
         1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4, 1e-3, 1e-3, 1e-3, 1e-3, 1e-5,
     ];
     let mut p = SVector::<f64, P>::zeros();
-    let mut current = cost(&apply(nominal, &p), obs);
+    let mut current = cost(&apply(nominal, &p), obs, c);
     let mut lambda = 1e-3;
     for _ in 0..40 {
         let unit = apply(nominal, &p);
@@ -101,7 +105,10 @@ fn solve(nominal: &MirrorUnit, obs: &[([f64; 2], Vec3)]) -> SVector<f64, P> {
                     j[(1, k)] = (r[1] - r0[1]) / steps[k];
                 }
                 let r = nalgebra::Vector2::new(r0[0], r0[1]);
-                (j.transpose() * j, j.transpose() * r)
+                let w = c.map_or(1.0, |c| {
+                    1.0 / (1.0 + (r0[0] * r0[0] + r0[1] * r0[1]) / (c * c))
+                });
+                (j.transpose() * j * w, j.transpose() * r * w)
             })
             .reduce(
                 || (SMatrix::<f64, P, P>::zeros(), SVector::<f64, P>::zeros()),
@@ -118,11 +125,11 @@ fn solve(nominal: &MirrorUnit, obs: &[([f64; 2], Vec3)]) -> SVector<f64, P> {
                 continue;
             };
             let q = p + step;
-            let c = cost(&apply(nominal, &q), obs);
-            if c < current {
-                let gain = (current - c) / current.max(1e-300);
+            let next = cost(&apply(nominal, &q), obs, c);
+            if next < current {
+                let gain = (current - next) / current.max(1e-300);
                 p = q;
-                current = c;
+                current = next;
                 lambda = (lambda * 0.3).max(1e-9);
                 improved = gain > 1e-10;
                 break;
@@ -164,10 +171,10 @@ pub fn fit_unit(nominal: &MirrorUnit, obs: &[([f64; 2], Vec3)]) -> (MirrorUnit, 
             },
         );
     }
-    // Robust passes: each refits on the observations within three times the previous fit's
-    // median error (at least 0.3 px) of it, so a region of dots taken for their neighbours
-    // is left out once the rest has placed the model.
-    let mut p = solve(nominal, obs);
+    // A robust (Cauchy) fit first, then least-squares passes, each on the observations within
+    // three times the previous fit's median error (at least 0.3 px) of it, so a region of dots
+    // taken for their neighbours is left out once the rest has placed the model.
+    let mut p = solve(nominal, obs, Some(1.0));
     let mut kept: Vec<([f64; 2], Vec3)> = obs.to_vec();
     for _ in 0..3 {
         let model = apply(nominal, &p);
@@ -184,7 +191,7 @@ pub fn fit_unit(nominal: &MirrorUnit, obs: &[([f64; 2], Vec3)]) -> (MirrorUnit, 
         if kept.len() < 4 * P {
             break;
         }
-        p = solve(nominal, &kept);
+        p = solve(nominal, &kept, None);
     }
     let fitted = apply(nominal, &p);
     let (rms_px, e) = rms(&fitted, &kept);

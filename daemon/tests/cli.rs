@@ -1793,6 +1793,15 @@ fn calibrate_omni_turns_a_two_position_session_into_ray_tables_that_decode_a_roo
     let session = dir.path().join("session");
     let o = ris(&["simulate", "--scene", s(&spec), "--out", s(&session)]);
     assert!(o.status.success(), "{}", stderr(&o));
+    // A second session into the same directory is refused; the first is left as it was.
+    let before = std::fs::read(session.join("session.toml")).expect("session.toml");
+    let o = ris(&["simulate", "--scene", s(&spec), "--out", s(&session)]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("not empty"), "{}", stderr(&o));
+    assert_eq!(
+        std::fs::read(session.join("session.toml")).expect("session.toml"),
+        before
+    );
     let out = dir.path().join("cal").join("omni.toml");
     let o = ris(&["calibrate", "omni", s(&session), "--out", s(&out)]);
     assert!(o.status.success(), "{}", stderr(&o));

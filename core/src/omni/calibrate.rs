@@ -308,7 +308,8 @@ pub fn is_session(path: &Path) -> bool {
 }
 
 /// Simulate the session described by the file at `path` (its `sensor`, relative to the file,
-/// is both the truth and the nominal sensor) into `dir`.
+/// is both the truth and the nominal sensor) into `dir`, which must not exist or be empty: the
+/// session is written beside it and moved into place whole.
 pub fn simulate_session_file(path: &Path, exposure: &Exposure, dir: &Path) -> Result<()> {
     let session: SessionFile = read_toml(path)?;
     session.validate(&path.display().to_string())?;
@@ -318,7 +319,9 @@ pub fn simulate_session_file(path: &Path, exposure: &Exposure, dir: &Path) -> Re
         .join(&session.sensor);
     let nominal: OmniFile = read_toml(&sensor_path)?;
     let truth = OmniSensor::load(&sensor_path)?;
-    simulate_session(&truth, &nominal, &session, exposure, dir)
+    crate::io::write_dir_atomically(dir, |tmp| {
+        simulate_session(&truth, &nominal, &session, exposure, tmp)
+    })
 }
 
 /// What a calibration found.

@@ -197,7 +197,7 @@ def write_png(path, w, h, pixels):
         return struct.pack(">I", len(data)) + c + struct.pack(">I", zlib.crc32(c) & 0xFFFFFFFF)
 
     png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 0, 0, 0, 0))
-    png += chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b"")
+    png += chunk(b"IDAT", zlib.compress(raw, 1)) + chunk(b"IEND", b"")
     with open(path, "wb") as f:
         f.write(png)
 

@@ -234,8 +234,25 @@ pub fn decode(
             if implied.len() < 3 || implied.iter().any(|&p| p != first) || first.0 == usize::MAX {
                 continue;
             }
-            let idx = first.1 * cols + first.0;
-            if values[m] == Some(prims.value[idx]) && !taken.contains(&first) {
+            // The symbols read about it (its own and its neighbours') must be the code's there,
+            // but for one where six or more were read: a neighbour skipped along a
+            // foreshortened grid line implies a place one step off, where the partial window
+            // no longer fits.
+            let (mut known, mut misfits) = (0, 0);
+            for (c, nb) in neigh[m].iter().enumerate() {
+                let Some(v) = nb.and_then(|q| values[q]) else {
+                    continue;
+                };
+                let (a, b) = OFFSETS[c];
+                known += 1;
+                if at(first.0 as i64 + i64::from(a), first.1 as i64 + i64::from(b))
+                    .is_none_or(|i| prims.value[i] != v)
+                {
+                    misfits += 1;
+                }
+            }
+            let fits = misfits == 0 || (misfits == 1 && known >= 6);
+            if values[m].is_some() && fits && !taken.contains(&first) {
                 newly.push((m, first));
             }
         }

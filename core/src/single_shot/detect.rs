@@ -58,6 +58,10 @@ impl Default for DetectParams {
     }
 }
 
+/// Grey levels added before the logarithm on which corners are placed: keeps read noise in the
+/// dark sectors from dominating.
+const LOG_OFFSET: f32 = 8.0;
+
 /// The X-points of a `width × height` image of grey levels.
 pub fn detect(levels: &[f32], width: usize, height: usize, p: &DetectParams) -> Vec<Detection> {
     if width < 8 || height < 8 || levels.len() != width * height {
@@ -119,9 +123,15 @@ pub fn detect(levels: &[f32], width: usize, height: usize, p: &DetectParams) -> 
             })
         })
         .collect();
+    // The corner is placed on the logarithm of the light: a surface's texture multiplies the
+    // pattern, and its log adds, weighing as much in the dark sectors as in the bright.
+    let log: Vec<f32> = s
+        .par_iter()
+        .map(|&v| fast_ln(v.max(0.0) + LOG_OFFSET))
+        .collect();
     let mut found: Vec<Detection> = candidates
         .par_iter()
-        .filter_map(|&(x, y, lo, hi)| refine(&s, levels, width, height, x, y, (lo, hi), p))
+        .filter_map(|&(x, y, lo, hi)| refine(&s, &log, levels, width, height, x, y, (lo, hi), p))
         .collect();
     // Plateaus give neighbouring maxima of one corner: keep the first of any two closer than
     // the moments' radius.
@@ -145,11 +155,22 @@ pub fn detect(levels: &[f32], width: usize, height: usize, p: &DetectParams) -> 
     kept
 }
 
+/// ln x for normal positive x, within 1e-3: the exponent plus a cubic in the mantissa that is
+/// exact at both ends of the octave, so it is continuous and increasing, and vectorises.
+fn fast_ln(x: f32) -> f32 {
+    let bits = x.to_bits();
+    let exponent = ((bits >> 23) & 0xff) as i32 - 127;
+    let t = f32::from_bits((bits & 0x007f_ffff) | 0x3f80_0000) - 1.0;
+    let log2 = exponent as f32 + t * (1.420_864_5 + t * (-0.577_250_6 + t * 0.156_386_1));
+    log2 * std::f32::consts::LN_2
+}
+
 /// The corner near candidate (x, y): a start from the saddle of a quadratic fit, the centre
-/// of point symmetry, then the axis from the moments of the raw image.
+/// of point symmetry of the log light `log`, then the axis from the moments of the raw image.
 #[allow(clippy::too_many_arguments)]
 fn refine(
     s: &[f32],
+    log: &[f32],
     raw: &[f32],
     width: usize,
     height: usize,
@@ -161,7 +182,8 @@ fn refine(
     let (lo, hi) = (f64::from(range.0), f64::from(range.1));
     let contrast = range.1 - range.0;
     let (cx, cy) = saddle_of_quadratic(s, width, height, x, y).unwrap_or((x as f64, y as f64));
-    let (cx, cy, asymmetry) = symmetric_centre(s, width, height, cx, cy, p.radius)?;
+    let (cx, cy, _) = symmetric_centre(log, width, height, cx, cy, p.radius, 6)?;
+    let (_, _, asymmetry) = symmetric_centre(s, width, height, cx, cy, p.radius, 1)?;
     // A primitive cut by a shadow, an occluding edge or the end of the surface is not
     // point-symmetric, and its centre of symmetry is not its corner.
     if asymmetry > p.max_asymmetry {
@@ -309,10 +331,11 @@ fn sample(s: &[f32], width: usize, height: usize, x: f64, y: f64) -> Option<(f64
     Some((v, gx, gy))
 }
 
-/// The centre of point symmetry of the light about (x, y), with the asymmetry left there: an X-point primitive is the same
-/// turned half a turn about its corner, and stays so under the affine part of the camera's
-/// view. Gauss–Newton on Σ (I(c + d) − I(c − d))² over a disc of `radius`, which uses every
-/// pixel of the primitive rather than the few at its corner.
+/// The centre of point symmetry of the light about (x, y), with the asymmetry at the start (of
+/// the light's variance): an X-point primitive is the same turned half a turn about its corner,
+/// and stays so under the affine part of the camera's view. Up to `steps` of Gauss–Newton on
+/// Σ (I(c + d) − I(c − d))² over a disc of `radius`, which uses every pixel of the primitive
+/// rather than the few at its corner.
 fn symmetric_centre(
     s: &[f32],
     width: usize,
@@ -320,11 +343,12 @@ fn symmetric_centre(
     x: f64,
     y: f64,
     radius: f64,
+    steps: usize,
 ) -> Option<(f64, f64, f64)> {
     let (mut cx, mut cy) = (x, y);
     let r = radius.ceil() as i32;
-    let mut asymmetry = 1.0;
-    for _ in 0..6 {
+    let mut asymmetry = None;
+    for _ in 0..steps {
         let (mut ee, mut energy, mut sum, mut count) = (0f64, 0f64, 0f64, 0f64);
         let (mut h11, mut h12, mut h22, mut g1, mut g2) = (0f64, 0f64, 0f64, 0f64, 0f64);
         for dy in 0..=r {
@@ -358,7 +382,7 @@ fn symmetric_centre(
         }
         let mean = sum / count.max(1.0);
         let spread = energy - count * mean * mean;
-        asymmetry = if spread > 0.0 { ee / spread } else { 1.0 };
+        asymmetry.get_or_insert(if spread > 0.0 { ee / spread } else { 1.0 });
         let det = h11 * h22 - h12 * h12;
         if det.abs() < 1e-12 {
             return None;
@@ -374,5 +398,22 @@ fn symmetric_centre(
             break;
         }
     }
-    Some((cx, cy, asymmetry))
+    Some((cx, cy, asymmetry.unwrap_or(1.0)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::fast_ln;
+
+    #[test]
+    fn fast_ln_follows_ln_and_increases() {
+        let mut last = f32::NEG_INFINITY;
+        for k in 0..20_000 {
+            let x = 1.0 + k as f32 * 0.037;
+            let y = fast_ln(x);
+            assert!((y - x.ln()).abs() < 1e-3, "{x}: {y} against {}", x.ln());
+            assert!(y > last, "{x}");
+            last = y;
+        }
+    }
 }

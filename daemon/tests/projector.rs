@@ -56,7 +56,7 @@ fn ris_project(display: &str, args: &[&str], until: &str) -> (Child, Vec<String>
         .env("DISPLAY", display)
         .env("RIS_LOG", "warn")
         .stdout(Stdio::piped())
-        .stderr(Stdio::null())
+        .stderr(Stdio::piped())
         .spawn()
         .expect("ris project");
     let stdout = child.stdout.take().expect("stdout");
@@ -118,5 +118,14 @@ fn patterns_reach_the_screen_pixel_for_pixel_and_the_window_conforms() {
         &["--projector", "1280x800", "--conformance"],
         "conformance: ok",
     );
-    assert!(child.wait().expect("wait").success(), "{lines:?}");
+    // stderr to its end (the child's exit) before waiting, so a full pipe cannot stall it.
+    let mut stderr = String::new();
+    if let Some(mut e) = child.stderr.take() {
+        let _ = std::io::Read::read_to_string(&mut e, &mut stderr);
+    }
+    let status = child.wait().expect("wait");
+    assert!(
+        status.success(),
+        "`ris project --conformance` ended with {status}; stdout {lines:?}; stderr: {stderr}"
+    );
 }

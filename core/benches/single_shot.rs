@@ -1,6 +1,8 @@
 //! Single-shot speed: generating the X-point code and primitives of a 1920x1080 projector at a
 //! 14 px step, and rendering its 8-bit image; detecting and decoding the X-points of one
-//! 1200x900 (1.08 MP) camera frame of the demo scene (pattern at 14 px, reference prediction).
+//! 1200x900 (1.08 MP) camera frame of the demo scene (pattern at 14 px), and the whole
+//! measurement of it as risd makes it (detection, decoding with the Gray-code reference's
+//! prediction, reconstruction through the parallax model).
 #![allow(missing_docs)] // criterion_group! generates an undocumented public function
 
 use criterion::{criterion_group, criterion_main, Criterion};
@@ -19,8 +21,11 @@ fn pattern(c: &mut Criterion) {
 
 fn frame(c: &mut Criterion) {
     use ris_core::pattern::{Pattern, ProjectionMask};
+    use ris_core::sensor::Reconstructor;
     use ris_core::sim::{Scene, SceneFile, Simulator};
-    use ris_core::single_shot::{decode, detect, DetectParams};
+    use ris_core::single_shot::{
+        decode, detect, measure, DetectParams, Detector, ReferencePrediction,
+    };
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenes/demo.toml");
     let mut f: SceneFile =
         toml::from_str(&std::fs::read_to_string(path).expect("read")).expect("parse");
@@ -43,25 +48,29 @@ fn frame(c: &mut Criterion) {
     let img = sim.frame_with(&sim.layout(), Pattern::White, Some(&mask), 1.0, 3);
     let levels = img.to_levels();
     let (w, h) = (img.width as usize, img.height as usize);
-    let (cam, proj) = (scene.camera.clone(), scene.projector.clone());
-    let predict = move |x: f64, y: f64| {
-        let (d, o) = (cam.ray(x, y), cam.center());
-        proj.project(&(o + (-o.z / d.z) * d))
-    };
+    // As risd measures: the prediction and the parallax model from the decoded reference.
+    let board = Simulator::new(scene.sprayed().reference());
+    let reference = ris_core::decode::decode(
+        &board.capture(&board.layout(), 1000, &|_, _| {}),
+        &ris_core::decode::DecodeParams::default(),
+    )
+    .expect("reference");
+    let rec = Reconstructor::parallax(&scene.camera, scene.projector.center(), &reference)
+        .expect("parallax");
+    let prediction = ReferencePrediction::new(&reference).expect("row codes");
+    let predict = |x: f64, y: f64| prediction.at(x, y);
     let mut g = c.benchmark_group("single_shot");
     g.sample_size(20);
+    let mut detector = Detector::new(DetectParams::default());
     g.bench_function("detect_1200x900", |b| {
-        b.iter(|| detect(&levels, w, h, &DetectParams::default()))
+        b.iter(|| detector.detect(&levels, w, h))
     });
     let found = detect(&levels, w, h, &DetectParams::default());
     g.bench_function("decode_1200x900", |b| {
         b.iter(|| decode(&found, &p, Some(&predict)))
     });
-    g.bench_function("detect_decode_1200x900", |b| {
-        b.iter(|| {
-            let found = detect(&levels, w, h, &DetectParams::default());
-            decode(&found, &p, Some(&predict))
-        })
+    g.bench_function("measure_1200x900", |b| {
+        b.iter(|| measure(&mut detector, &img, &p, Some(&predict), &rec))
     });
     g.finish();
 }

@@ -86,9 +86,18 @@ impl GrayImage {
     /// The samples on the 8-bit scale (0..255, fractional for 16-bit images), so thresholds in
     /// DN apply to either depth.
     pub fn to_levels(&self) -> Vec<f32> {
+        let mut out = Vec::new();
+        self.levels_into(&mut out);
+        out
+    }
+
+    /// [`GrayImage::to_levels`] into `out`, reusing its memory (a stream's frames are all
+    /// one size).
+    pub fn levels_into(&self, out: &mut Vec<f32>) {
+        out.clear();
         match &self.pixels {
-            Pixels::U8(v) => v.iter().map(|&p| f32::from(p)).collect(),
-            Pixels::U16(v) => v.iter().map(|&p| f32::from(p) / 257.0).collect(),
+            Pixels::U8(v) => out.extend(v.iter().map(|&p| f32::from(p))),
+            Pixels::U16(v) => out.extend(v.iter().map(|&p| f32::from(p) / 257.0)),
         }
     }
 
@@ -178,10 +187,27 @@ pub fn save_rgb_png(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<
 /// Separable Gaussian blur of a row-major f32 image (σ in pixels, kernel ±3σ, edges clamped);
 /// rows run in parallel.
 pub fn gaussian_blur(data: &[f32], width: usize, height: usize, sigma: f32) -> Vec<f32> {
+    let (mut tmp, mut out) = (Vec::new(), Vec::new());
+    gaussian_blur_into(data, width, height, sigma, &mut tmp, &mut out);
+    out
+}
+
+/// [`gaussian_blur`] into `out`, with `tmp` for the horizontal pass: both keep their memory
+/// between calls, which spares a frame-sized allocation (and its page faults) per frame.
+pub fn gaussian_blur_into(
+    data: &[f32],
+    width: usize,
+    height: usize,
+    sigma: f32,
+    tmp: &mut Vec<f32>,
+    out: &mut Vec<f32>,
+) {
     use rayon::prelude::*;
     debug_assert_eq!(data.len(), width * height);
+    out.clear();
     if sigma <= 0.0 || width == 0 || height == 0 {
-        return data.to_vec();
+        out.extend_from_slice(data);
+        return;
     }
     let r = (3.0 * sigma).ceil() as isize;
     let mut kernel: Vec<f32> = (-r..=r)
@@ -191,7 +217,7 @@ pub fn gaussian_blur(data: &[f32], width: usize, height: usize, sigma: f32) -> V
     kernel.iter_mut().for_each(|k| *k /= sum);
     let clamp = |i: isize, n: usize| i.clamp(0, n as isize - 1) as usize;
     let pad = r as usize;
-    let mut tmp = vec![0.0f32; data.len()];
+    tmp.resize(data.len(), 0.0);
     // Each row padded with its edge values, then one multiply-add sweep per kernel tap (the
     // same sums, in the same order, as a per-pixel dot product, but vectorised).
     tmp.par_chunks_mut(width)
@@ -208,8 +234,10 @@ pub fn gaussian_blur(data: &[f32], width: usize, height: usize, sigma: f32) -> V
                 }
             }
         });
-    let mut out = vec![0.0f32; data.len()];
+    let tmp = &tmp[..];
+    out.resize(data.len(), 0.0);
     out.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
+        row.fill(0.0);
         for (k, w) in kernel.iter().enumerate() {
             let src = &tmp[clamp(y as isize + k as isize - r, height) * width..][..width];
             for (o, s) in row.iter_mut().zip(src) {
@@ -217,7 +245,6 @@ pub fn gaussian_blur(data: &[f32], width: usize, height: usize, sigma: f32) -> V
             }
         }
     });
-    out
 }
 
 #[cfg(test)]

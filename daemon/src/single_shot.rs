@@ -4,7 +4,7 @@
 //! ring pattern of an omnidirectional sensor; the slide that projects it, the computation of a
 //! frame into a cloud, and the picture an operator watches (fusion image or panorama).
 
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use anyhow::{anyhow, Context, Result};
 use ris_core::cloud::PointCloud;
@@ -12,7 +12,9 @@ use ris_core::decode::Decoded;
 use ris_core::image::GrayImage;
 use ris_core::omni::{panorama, OmniSensor, RingDecode, RingDecoder, RingParams};
 use ris_core::sensor::Reconstructor;
-use ris_core::single_shot::{self, fuse, FusionRange, ReferencePrediction, XPointPattern};
+use ris_core::single_shot::{
+    self, fuse, Detector, FusionRange, ReferencePrediction, XPointPattern,
+};
 use ris_drivers::Slide;
 
 use crate::config::SingleShotSection;
@@ -25,6 +27,8 @@ pub struct PairSingleShot {
     pub slide: Slide,
     reference: Arc<Decoded>,
     reconstructor: Arc<Reconstructor>,
+    /// Kept from frame to frame: its working images are frame-sized.
+    detector: Box<Mutex<Detector>>,
 }
 
 impl PairSingleShot {
@@ -50,6 +54,7 @@ impl PairSingleShot {
             slide,
             reference,
             reconstructor,
+            detector: Box::new(Mutex::new(Detector::default())),
         })
     }
 }
@@ -121,7 +126,13 @@ impl OneShot {
                 let predict = ReferencePrediction::new(&x.reference)
                     .ok_or_else(|| anyhow!("the reference has no row codes"))?;
                 let at = |u: f64, v: f64| predict.at(u, v);
-                let m = single_shot::measure(image, &x.pattern, Some(&at), &x.reconstructor);
+                let m = single_shot::measure(
+                    &mut x.detector.lock().unwrap_or_else(|e| e.into_inner()),
+                    image,
+                    &x.pattern,
+                    Some(&at),
+                    &x.reconstructor,
+                );
                 tracing::debug!(detected = m.detected, stats = ?m.stats, "single-shot frame");
                 Ok(FrameCloud {
                     cloud: m.cloud,

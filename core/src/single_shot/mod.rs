@@ -9,7 +9,7 @@ mod pattern;
 mod reconstruct;
 
 pub use decode::{decode, Correspondence, DecodeStats, Predict};
-pub use detect::{detect, DetectParams, Detection};
+pub use detect::{detect, DetectParams, Detection, Detector};
 pub use fusion::{fuse, fuse_from, Fused, FusionRange};
 pub use pattern::{PatternSection, Primitives, XPointPattern, MIN_STEP};
 pub use reconstruct::{measure, reconstruct, Measured, ReferencePrediction};

@@ -106,21 +106,17 @@ pub struct Measured {
     pub reconstruct_s: f64,
 }
 
-/// Detect, decode (the repeat chosen by `predict`) and reconstruct one camera `image` of
-/// `pattern` through `rec`.
+/// Detect (with `detector`, which keeps its working images for the next frame), decode (the
+/// repeat chosen by `predict`) and reconstruct one camera `image` of `pattern` through `rec`.
 pub fn measure(
+    detector: &mut super::Detector,
     image: &crate::image::GrayImage,
     pattern: &super::XPointPattern,
     predict: Option<super::Predict>,
     rec: &Reconstructor,
 ) -> Measured {
     let t = std::time::Instant::now();
-    let found = super::detect(
-        &image.to_levels(),
-        image.width as usize,
-        image.height as usize,
-        &super::DetectParams::default(),
-    );
+    let found = detector.detect_image(image);
     let (matches, stats) = super::decode(&found, pattern, predict);
     let decode_s = t.elapsed().as_secs_f64();
     let cloud = reconstruct(&matches, rec);

@@ -310,6 +310,7 @@ pub fn motion(
         (mean, finite.iter().filter(|v| v.abs() <= 1.0).count())
     };
     let mut rows = Vec::new();
+    let mut detector = single_shot::Detector::default();
     for &speed in speeds {
         let mut moving = scene.clone();
         for o in &mut moving.objects {
@@ -333,7 +334,7 @@ pub fn motion(
             9,
         );
         pb.inc(1);
-        let single = single_shot::measure(&image, &xpoint, Some(&at), &rec).cloud;
+        let single = single_shot::measure(&mut detector, &image, &xpoint, Some(&at), &rec).cloud;
         let (single_mean, single_good) = summary(&depth_errors(&moving.at(0.0), &single));
         tracing::info!(speed, gray_mean, single_mean, "motion");
         rows.push(MotionRow {

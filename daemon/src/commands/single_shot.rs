@@ -72,7 +72,13 @@ pub fn run(
         );
     }
     let at = |x: f64, y: f64| predict.at(x, y);
-    let m = single_shot::measure(&img, &pattern, Some(&at), &rec);
+    let m = single_shot::measure(
+        &mut single_shot::Detector::default(),
+        &img,
+        &pattern,
+        Some(&at),
+        &rec,
+    );
     let cloud = &m.cloud;
     tracing::info!(stats = ?m.stats, "single-shot decoding");
     cloud

@@ -440,7 +440,7 @@ fn decoded_x_points_are_the_primitives_that_light_them() {
             o.far
         );
         assert!(
-            (o.far as f64) <= 0.008 * o.measured as f64,
+            (o.far as f64) <= 0.005 * o.measured as f64,
             "case {case}: {} of {} beyond 2 mm",
             o.far,
             o.measured
@@ -535,7 +535,7 @@ fn independent_renders_decode_to_the_surface() {
     let dir = tempfile::tempdir().expect("tmp");
     let mut rng = Rng(17);
     // All scenes render at once (the renderer is single-threaded), then decode in turn.
-    let cases: Vec<_> = [((0.05, 0.15), 0.3), ((0.05, 0.15), 0.3), ((0.2, 0.3), 0.6)]
+    let cases: Vec<_> = [((0.05, 0.15), 0.3), ((0.05, 0.15), 0.3), ((0.2, 0.3), 0.45)]
         .into_iter()
         .enumerate()
         .map(|(case, (texture, mean_bound))| {
@@ -586,9 +586,11 @@ fn independent_renders_decode_to_the_surface() {
             o.mean_mm
         );
         // Corners cut by the end of a surface (the table's edge, a shadow) keep a centre of
-        // symmetry off their corner; they carry the boundary flag (halved confidence). Points
-        // at full confidence beyond 2 mm stay within the 0.1 %; all of them within
-        // 1.5 % (one scene's table edge runs along a column of primitives).
+        // symmetry off their corner. Those cut along their axis are dropped as cut (their light
+        // is narrower than their neighbours'); the rest carry the boundary flag (halved
+        // confidence). Points at full confidence beyond 2 mm stay within the 0.1 %;
+        // all of them within 0.6 % (1.0–1.1 % before the cut test, where a table edge runs
+        // along a column of primitives).
         let unflagged = o.far - o.far_flagged;
         assert!(
             unflagged as f64 <= 0.001 * o.measured as f64 + 1.0,
@@ -596,7 +598,7 @@ fn independent_renders_decode_to_the_surface() {
             o.measured
         );
         assert!(
-            (o.far as f64) <= 0.015 * o.measured as f64,
+            (o.far as f64) <= 0.006 * o.measured as f64,
             "scene {case}: {} of {} beyond 2 mm",
             o.far,
             o.measured

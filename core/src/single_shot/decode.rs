@@ -60,7 +60,7 @@ pub struct DecodeStats {
 /// part that is itself point-symmetric about a centre up to half a lobe's width off the corner,
 /// so neither the fit nor its asymmetry shows it; its light is more elongated (whole primitives
 /// 0.48–0.59 on the seeded test scenes, such cut ones up to 0.77). On those scenes this margin
-/// takes the boundary points beyond 2 mm from 53 to 28 and 0–0.5 % of the decoded ones.
+/// takes the points beyond 2 mm from 53 to 26, and 0–0.5 % of the decoded ones.
 pub const CUT_ELONGATION: f64 = 0.15;
 
 /// Grid offsets of the 8 neighbours and the centre, row by row (window order).
@@ -313,7 +313,13 @@ pub fn decode(
                 .filter(|&&m| m != k && sides[m] == 0b1111)
                 .map(|&m| detections[m].elongation),
         );
-        let reference = median(&mut near).or(frame_median);
+        // Three whole neighbours or more give a local reference (foreshortening changes the
+        // elongation across the frame); fewer, the frame's.
+        let reference = if near.len() >= 3 {
+            median(&mut near)
+        } else {
+            frame_median
+        };
         if reference.is_some_and(|r| detections[k].elongation > r + CUT_ELONGATION) {
             placed[k] = None;
             stats.cut += 1;

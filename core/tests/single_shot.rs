@@ -38,6 +38,36 @@ struct Outcome {
     mean_px: f64,
 }
 
+impl Outcome {
+    /// The share of the primitives the camera sees that were decoded.
+    fn rate(&self) -> f64 {
+        self.decoded_visible as f64 / self.visible.max(1) as f64
+    }
+
+    /// What both families assert of decoding: enough primitives in view, ≥ 95 % of them
+    /// decoded, ≤ 0.1 % placed wrong, and at most `far_share` of the points beyond 2 mm.
+    fn assert_decoding(&self, label: &str, far_share: f64) {
+        assert!(self.visible > 1000, "{label}: {} visible", self.visible);
+        assert!(
+            self.rate() >= 0.95,
+            "{label}: {:.1} % decoded",
+            100.0 * self.rate()
+        );
+        assert!(
+            (self.wrong as f64) <= 0.001 * self.decoded as f64,
+            "{label}: {} of {} wrong",
+            self.wrong,
+            self.decoded
+        );
+        assert!(
+            (self.far as f64) <= far_share * self.measured as f64,
+            "{label}: {} of {} beyond 2 mm",
+            self.far,
+            self.measured
+        );
+    }
+}
+
 fn run(file: SceneFile, step: [u32; 2], seed: u64) -> Outcome {
     let scene = Scene::from_file(file, Path::new("."), "single-shot").expect("scene");
     let sim = Simulator::new(scene.clone());
@@ -393,7 +423,7 @@ fn decoded_x_points_are_the_primitives_that_light_them() {
         f.camera.noise = rng.range(1.0, 3.0);
         f.render.seed = case + 1;
         let o = run(f, step, 100 + case);
-        let rate = o.decoded_visible as f64 / o.visible.max(1) as f64;
+        let rate = o.rate();
         eprintln!(
             "case {case} step {step:?}: {} of {} visible primitives decoded ({:.1} %), {} decoded in all, {} wrong, {} off at depth edges, mean error {:.3} px",
             o.decoded_visible,
@@ -403,14 +433,6 @@ fn decoded_x_points_are_the_primitives_that_light_them() {
             o.wrong,
             o.at_edges,
             o.mean_px
-        );
-        assert!(o.visible > 1000, "case {case}: {} visible", o.visible);
-        assert!(rate >= 0.95, "case {case}: {:.1} % decoded", 100.0 * rate);
-        assert!(
-            (o.wrong as f64) <= 0.001 * o.decoded as f64,
-            "case {case}: {} of {} wrong",
-            o.wrong,
-            o.decoded
         );
         assert!(
             (o.at_edges as f64) <= 0.005 * o.decoded as f64,
@@ -439,12 +461,7 @@ fn decoded_x_points_are_the_primitives_that_light_them() {
             o.far_flagged,
             o.far
         );
-        assert!(
-            (o.far as f64) <= 0.005 * o.measured as f64,
-            "case {case}: {} of {} beyond 2 mm",
-            o.far,
-            o.measured
-        );
+        o.assert_decoding(&format!("case {case}"), 0.005);
         assert!(o.mean_mm <= 0.3, "case {case}: mean {:.3} mm", o.mean_mm);
     }
 }
@@ -557,7 +574,7 @@ fn independent_renders_decode_to_the_surface() {
             String::from_utf8_lossy(&py.stderr)
         );
         let o = decode_independent(&pattern, &at);
-        let rate = o.decoded_visible as f64 / o.visible.max(1) as f64;
+        let rate = o.rate();
         eprintln!(
             "independent scene {case} step {step:?} noise {noise:.1} texture {texture:.2}: {} of {} visible primitives decoded ({:.1} %), {} decoded, {} wrong, {} at depth edges, {:.3} px; {} points, mean {:.3} mm over {}, {} beyond 2 mm ({} flagged)",
             o.decoded_visible,
@@ -572,13 +589,6 @@ fn independent_renders_decode_to_the_surface() {
             o.measured,
             o.far,
             o.far_flagged
-        );
-        assert!(o.visible > 1000, "scene {case}: {} visible", o.visible);
-        assert!(rate >= 0.95, "scene {case}: {:.1} % decoded", 100.0 * rate);
-        assert!(
-            o.wrong as f64 <= 0.001 * o.decoded as f64,
-            "scene {case}: {} wrong",
-            o.wrong
         );
         assert!(
             o.mean_mm <= mean_bound,
@@ -597,11 +607,6 @@ fn independent_renders_decode_to_the_surface() {
             "scene {case}: {unflagged} of {} unflagged beyond 2 mm",
             o.measured
         );
-        assert!(
-            (o.far as f64) <= 0.006 * o.measured as f64,
-            "scene {case}: {} of {} beyond 2 mm",
-            o.far,
-            o.measured
-        );
+        o.assert_decoding(&format!("scene {case}"), 0.006);
     }
 }

@@ -375,7 +375,6 @@ impl CodeBook {
     /// The places of the codeword within distance 1 of `word` (or, with one unknown symbol,
     /// matching the 8 known ones); `None` unless exactly one codeword qualifies.
     fn lookup(&self, word: [u8; 9], unknown: Option<usize>) -> Option<&[(u32, (usize, usize))]> {
-        let exact = self.places(key(&word));
         let mut found: Option<&[(u32, (usize, usize))]> = None;
         let mut distinct = 0;
         let mut consider = |w: [u8; 9]| {
@@ -393,7 +392,7 @@ impl CodeBook {
                     consider(w);
                 }
             }
-            None if !exact.is_empty() => consider(word),
+            None if !self.places(key(&word)).is_empty() => consider(word),
             None => {
                 for c in 0..9 {
                     for v in (0..4).filter(|&v| v != word[c]) {
@@ -427,7 +426,8 @@ fn key(w: &[u8; 9]) -> u32 {
 }
 
 /// Detections bucketed on a square grid of cells over their bounding box, for neighbour
-/// queries: each cell's detections are a run of `items`.
+/// queries: each cell's detections are a run of `items`. Detections off the finite plane are
+/// left out.
 struct SpatialIndex {
     cell: f64,
     origin: (f64, f64),
@@ -438,38 +438,42 @@ struct SpatialIndex {
 
 impl SpatialIndex {
     fn new(d: &[Detection]) -> SpatialIndex {
-        let cell = 8.0;
-        let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
-        for p in d {
+        let finite = |p: &&Detection| p.x.is_finite() && p.y.is_finite();
+        let (mut x0, mut y0, mut x1, mut y1) = (0f64, 0f64, 0f64, 0f64);
+        for (k, p) in d.iter().filter(finite).enumerate() {
+            if k == 0 {
+                (x0, y0, x1, y1) = (p.x, p.y, p.x, p.y);
+            }
             x0 = x0.min(p.x);
             y0 = y0.min(p.y);
             x1 = x1.max(p.x);
             y1 = y1.max(p.y);
         }
-        if d.is_empty() {
-            (x0, y0, x1, y1) = (0.0, 0.0, 0.0, 0.0);
-        }
+        // 8 px cells, coarser where the detections spread so far that the grid would hold more
+        // than a few cells per detection (any caller's input stays bounded in memory).
+        let most = (4 * d.len()).max(1024) as f64;
+        let cell = (((x1 - x0 + 1.0) * (y1 - y0 + 1.0) / most).sqrt()).max(8.0);
         let size = (
             ((x1 - x0) / cell).floor() as i64 + 1,
             ((y1 - y0) / cell).floor() as i64 + 1,
         );
         let cell_of = |p: &Detection| {
             let (bx, by) = (
-                ((p.x - x0) / cell).floor() as i64,
-                ((p.y - y0) / cell).floor() as i64,
+                (((p.x - x0) / cell).floor() as i64).clamp(0, size.0 - 1),
+                (((p.y - y0) / cell).floor() as i64).clamp(0, size.1 - 1),
             );
             (by * size.0 + bx) as usize
         };
         let mut starts = vec![0u32; (size.0 * size.1) as usize + 1];
-        for p in d {
+        for p in d.iter().filter(finite) {
             starts[cell_of(p) + 1] += 1;
         }
         for c in 1..starts.len() {
             starts[c] += starts[c - 1];
         }
         let mut fill = starts.clone();
-        let mut items = vec![0u32; d.len()];
-        for (k, p) in d.iter().enumerate() {
+        let mut items = vec![0u32; starts[starts.len() - 1] as usize];
+        for (k, p) in d.iter().enumerate().filter(|(_, p)| finite(p)) {
             let c = cell_of(p);
             items[fill[c] as usize] = k as u32;
             fill[c] += 1;
@@ -649,4 +653,75 @@ fn value(
 
 fn norm(v: [f64; 2]) -> f64 {
     v[0].hypot(v[1])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::single_shot::detect;
+
+    /// The pattern itself seen 1:1 by a camera: every primitive's camera corner is its projector
+    /// corner, which is the ground truth here.
+    fn seen_whole(
+        width: u32,
+        height: u32,
+        step: [u32; 2],
+        seed: u64,
+    ) -> (XPointPattern, Vec<Detection>) {
+        let pattern = XPointPattern::generate(width, height, step, 3, seed).expect("pattern");
+        let levels: Vec<f32> = pattern.render().into_iter().map(f32::from).collect();
+        let found = detect(
+            &levels,
+            width as usize,
+            height as usize,
+            &Default::default(),
+        );
+        (pattern, found)
+    }
+
+    #[test]
+    fn the_pattern_seen_whole_decodes_to_its_own_corners() {
+        for (seed, step) in [(1, [14, 14]), (2, [12, 16]), (3, [16, 13])] {
+            let (pattern, found) = seen_whole(480, 360, step, seed);
+            let identity = |x: f64, y: f64| Some((x, y));
+            let (matches, stats) = decode(&found, &pattern, Some(&identity));
+            let n = pattern.primitives.u.len();
+            let worst = matches
+                .iter()
+                .map(|m| (m.u - m.x).hypot(m.v - m.y))
+                .fold(0.0, f64::max);
+            eprintln!(
+                "seed {seed} step {step:?}: {} of {n} decoded, worst {worst:.3} px, {stats:?}",
+                matches.len()
+            );
+            assert!(
+                matches.len() * 10 >= n * 9,
+                "seed {seed}: {} of {n}",
+                matches.len()
+            );
+            assert!(
+                worst < 0.5,
+                "seed {seed}: a corner {worst:.3} px from its primitive"
+            );
+            assert_eq!(stats.cut, 0, "seed {seed}: whole primitives dropped as cut");
+        }
+    }
+
+    #[test]
+    fn detections_off_the_plane_are_left_out_without_a_panic() {
+        let (pattern, found) = seen_whole(480, 360, [14, 14], 1);
+        let identity = |x: f64, y: f64| Some((x, y));
+        let (clean, _) = decode(&found, &pattern, Some(&identity));
+        let mut bad = found.clone();
+        for (x, y) in [
+            (f64::NAN, 10.0),
+            (f64::INFINITY, 5.0),
+            (1e300, -1e300),
+            (-1e12, 3.0),
+        ] {
+            bad.push(Detection { x, y, ..found[0] });
+        }
+        let (matches, _) = decode(&bad, &pattern, Some(&identity));
+        assert_eq!(matches, clean);
+    }
 }

@@ -512,25 +512,16 @@ fn symmetric_centre(
     for _ in 0..6 {
         let at = Shifted::new(s, width, height, cx, cy, radius.ceil() as i32)?;
         let (mut h11, mut h12, mut h22, mut g1, mut g2) = (0f64, 0f64, 0f64, 0f64, 0f64);
-        let scale: f64 = std::env::var("RIS_ROBUST")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(0.0);
         for (dx, dy) in half_disc(radius) {
             let (p, px, py) = at.with_gradient(dx, dy);
             let (q, qx, qy) = at.with_gradient(-dx, -dy);
             let e = p - q;
-            let w = if scale > 0.0 {
-                1.0 / (1.0 + (e / scale).powi(2))
-            } else {
-                1.0
-            };
             let (jx, jy) = (px - qx, py - qy);
-            h11 += w * jx * jx;
-            h12 += w * jx * jy;
-            h22 += w * jy * jy;
-            g1 += w * jx * e;
-            g2 += w * jy * e;
+            h11 += jx * jx;
+            h12 += jx * jy;
+            h22 += jy * jy;
+            g1 += jx * e;
+            g2 += jy * e;
         }
         let det = h11 * h22 - h12 * h12;
         if det.abs() < 1e-12 {

@@ -8,7 +8,7 @@ mod fusion;
 mod pattern;
 mod reconstruct;
 
-pub use decode::{decode, Correspondence, DecodeStats, Predict, CUT_ELONGATION};
+pub use decode::{decode, Correspondence, DecodeStats, Predict, CUT_ELONGATION, OFF_GRID};
 pub use detect::{detect, DetectParams, Detection, Detector};
 pub use fusion::{fuse, fuse_from, Fused, FusionRange};
 pub use pattern::{PatternSection, Primitives, XPointPattern, MIN_STEP};

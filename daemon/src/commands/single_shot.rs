@@ -103,7 +103,7 @@ pub fn run(
         );
     }
     println!(
-        "{} points from {} X-points ({} by their codeword, {} from a neighbour; {} codewords read, {} matched; {} dropped as cut by an edge); prepare {:.0} ms, decode + reconstruct {:.0} ms; wrote {}",
+        "{} points from {} X-points ({} by their codeword, {} from a neighbour; {} codewords read, {} matched; {} dropped as cut by an edge, {} refused off the grid); prepare {:.0} ms, decode + reconstruct {:.0} ms; wrote {}",
         cloud.len(),
         m.detected,
         m.from_codeword,
@@ -111,6 +111,7 @@ pub fn run(
         m.stats.windows,
         m.stats.matched,
         m.stats.cut,
+        m.stats.off_grid,
         prepare.as_secs_f64() * 1e3,
         (m.decode_s + m.reconstruct_s) * 1e3,
         out.display()

@@ -233,23 +233,20 @@ pub fn open(s: &SensorConfig, single: &SingleShotSection, seed: u64) -> Result<P
     let t = Instant::now();
     let mut m = model(s)?;
     let omni = m.omni.take();
+    let room = omni.as_ref().and_then(|o| o.1.clone());
     let (camera, projector, faults, backend): (
         Box<dyn Camera>,
         Box<dyn Projector>,
         Option<FaultInjector>,
         &'static str,
-    ) = match &s.backend {
-        Backend::Mock if omni.as_ref().is_some_and(|o| o.1.is_some()) => {
-            let room = omni
-                .as_ref()
-                .and_then(|o| o.1.clone())
-                .unwrap_or_else(|| unreachable!("checked by the match guard"));
+    ) = match (&s.backend, room) {
+        (Backend::Mock, Some(room)) => {
             let (mut cam, proj, faults) = omni_pair(Arc::new(room), &s.name, seed);
             cam.set_exposure_us(s.exposure_us)
                 .with_context(|| format!("sensor {}: exposure", s.name))?;
             (Box::new(cam), Box::new(proj), Some(faults), "mock")
         }
-        Backend::Mock => {
+        (Backend::Mock, None) => {
             let sc = m
                 .scene
                 .clone()
@@ -260,7 +257,7 @@ pub fn open(s: &SensorConfig, single: &SingleShotSection, seed: u64) -> Result<P
                 .with_context(|| format!("sensor {}: exposure", s.name))?;
             (Box::new(cam), Box::new(proj), Some(faults), "mock")
         }
-        Backend::Replay { recording } => {
+        (Backend::Replay { recording }, _) => {
             let set = CaptureSet::load(recording)
                 .with_context(|| format!("sensor {}: recording", s.name))?;
             if (set.width, set.height) != m.camera_size || set.layout != m.layout {
@@ -281,7 +278,7 @@ pub fn open(s: &SensorConfig, single: &SingleShotSection, seed: u64) -> Result<P
             let (cam, proj, _) = replay_pair(Arc::new(set), &s.name);
             (Box::new(cam), Box::new(proj), None, "replay")
         }
-        Backend::Aravis | Backend::V4l2 => {
+        (Backend::Aravis | Backend::V4l2, _) => {
             let monitor = s.projector_monitor.unwrap_or(0);
             let projector = ris_projector::open_projector(&ProjectorSettings {
                 monitor,

@@ -357,17 +357,22 @@ pub fn omni(session: &Path, out: &Path) -> Result<()> {
             k + 1
         );
     }
+    use ris_core::omni::fit::{MAX_RAY_SD_DEG, MAX_RMS_PX};
     for (unit, f) in [("camera", &r.camera_fit), ("projector", &r.projector_fit)] {
         if f.used {
             println!(
-                "{unit}: model fitted to {} of {} observations: {:.2} px RMS ({:.2} px at 95 %; the drawn file {:.2} px), mirror moved {:.2} mm and turned {:.2}°",
-                f.observations[0], f.observations[1], f.rms_px, f.p95_px, f.nominal_rms_px, f.moved_mm, f.turned_deg
+                "{unit}: model fitted to {} of {} observations: {:.2} px RMS ({:.2} px at 95 %; the drawn file {:.2} px), rays within {:.4}° (1 sigma, worst pixel), mirror moved {:.2} mm and turned {:.2}°",
+                f.observations[0], f.observations[1], f.rms_px, f.p95_px, f.nominal_rms_px, f.ray_sd_deg, f.moved_mm, f.turned_deg
+            );
+        } else if f.rms_px > MAX_RMS_PX {
+            println!(
+                "{unit}: the mirror model does not fit its observations ({:.2} px RMS, more than {MAX_RMS_PX} px): its rays are each pixel's own two target points, noisier",
+                f.rms_px
             );
         } else {
             println!(
-                "{unit}: the mirror model does not fit its observations ({:.2} px RMS, more than {} px): its rays are each pixel's own two target points, noisier",
-                f.rms_px,
-                ris_core::omni::fit::MAX_RMS_PX
+                "{unit}: the observations leave the mirror model loose (rays known to {:.3}° at the worst pixel, more than {MAX_RAY_SD_DEG}°: too few, or one side or distance only): its rays are each pixel's own two target points, noisier",
+                f.ray_sd_deg
             );
         }
     }

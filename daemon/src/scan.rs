@@ -170,6 +170,9 @@ pub struct ScanReport {
     pub compute_after_last_frame: f64,
     /// The inspection, when the scan inspected a part.
     pub inspection: Option<InspectionSummary>,
+    /// What the scan's consumer should know before trusting it (a sensor that gave no
+    /// points); also in the inspection report's warnings.
+    pub warnings: Vec<String>,
     /// Total, s.
     pub total: f64,
     /// Every cloud as written (sensors, then `merged`): binary PLY in memory, to publish
@@ -525,11 +528,19 @@ fn scan_into(
             (m, d, t, clouds)
         })
     })?;
+    let mut warnings = Vec::new();
     for (i, (points, outside), compute, stages) in done {
         timings[i].compute = compute;
         timings[i].stages = stages;
         timings[i].points = points;
         timings[i].outside_volume = outside;
+        if points == 0 {
+            tracing::warn!(sensor = %timings[i].sensor, "no points reconstructed");
+            warnings.push(format!(
+                "sensor {} reconstructed no points: the merged cloud lacks its view (a covered lens or projector, nothing in view, or a pattern finer than its camera resolves)",
+                timings[i].sensor
+            ));
+        }
         if outside > 0 {
             tracing::warn!(
                 sensor = %timings[i].sensor,
@@ -547,6 +558,7 @@ fn scan_into(
             &secs,
             state,
             options.mode,
+            &warnings,
         )?),
         None => None,
     };
@@ -565,6 +577,7 @@ fn scan_into(
         merged_points: merged.len(),
         compute_after_last_frame: merge_time.1 - last_frame,
         inspection,
+        warnings,
         total: secs(),
         clouds,
     };
@@ -702,6 +715,7 @@ fn inspect_part(
     secs: &dyn Fn() -> f64,
     state: &(dyn Fn(&ScanState) + Sync),
     mode: ScanMode,
+    notes: &[String],
 ) -> Result<InspectionSummary> {
     state(&ScanState::Inspecting {
         part: part.id.clone(),
@@ -728,13 +742,21 @@ fn inspect_part(
             ..InspectParams::default()
         },
     )
-    .with_context(|| format!("inspecting part {}", part.id))?;
+    .with_context(|| {
+        let mut why = format!("inspecting part {}", part.id);
+        for n in notes {
+            why.push_str("; ");
+            why.push_str(n);
+        }
+        why
+    })?;
     if outside > 0 {
         r.report.warnings.push(format!(
             "{outside} of {} merged points lie outside their sensor's calibrated volume and were not inspected",
             merged.len()
         ));
     }
+    r.report.warnings.extend(notes.iter().cloned());
     if mode == ScanMode::SingleShot {
         r.report.warnings.push(format!(
             "a single-shot scan: {} sparse points, each from one X-point of one frame, noisier than a Gray-code scan; weigh the verdict against that before acting on it",

@@ -871,6 +871,7 @@ fn run_job(job: Job, cell_: &mut Cell, ctx: &WorkerContext) {
                 "sensors": report.sensors,
                 "merge": report.merge,
                 "inspection": report.inspection,
+                "warnings": report.warnings,
                 "total": report.total,
             });
             let key = state_key(cell, &id);

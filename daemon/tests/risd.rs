@@ -218,7 +218,6 @@ fn once_scans_the_builtin_mock_cell() {
     for s in ["s1", "s2", "s3", "s4"] {
         let c = ris_core::cloud::PointCloud::read_ply(&scan.join(format!("{s}.ply"))).expect(s);
         assert!(c.len() > 200_000, "{s}: {} points", c.len());
-        // Each sensor's cloud is organised: every point keeps its camera pixel.
         // Each sensor's cloud is organised: every point keeps the camera pixel it was measured
         // at, which the scene's true camera projects it back to.
         let scene = ris_core::sim::Scene::load(&config_dir().join(format!("mock-cell/{s}.toml")))
@@ -298,6 +297,65 @@ fn once_scans_the_builtin_mock_cell() {
             .expect("json");
     assert_eq!(full["verdict"], "pass");
     assert!(scan.join("deviation.png").is_file() && scan.join("deviation.ply").is_file());
+}
+
+/// A sensor that measures nothing (here: an X-point pattern too fine for the cameras to
+/// resolve) is named in the scan's warnings; with nothing at all to inspect, the scan fails
+/// naming the part and those sensors rather than giving a verdict.
+#[test]
+fn a_sensor_that_reconstructs_nothing_is_named_and_no_verdict_is_given() {
+    let mut config = CellConfig::load(&config_dir().join("mock-cell.toml")).expect("config");
+    config.sensors.retain(|s| s.name == "s1" || s.name == "s2");
+    config.single_shot.step = [8, 8];
+    let mut pairs = ris_daemon::pair::open_all(&config, 5).expect("pairs");
+    let data = tempfile::tempdir().expect("tmp");
+    let single = ScanOptions {
+        mode: ris_daemon::scan::ScanMode::SingleShot,
+        ..ScanOptions::default()
+    };
+    let (report, dir) = ris_daemon::scan::run(
+        "mock",
+        &mut pairs,
+        single,
+        data.path(),
+        "a",
+        &|| false,
+        &|_| {},
+    )
+    .expect("the scan completes");
+    let written = std::fs::read_to_string(dir.join("scan.json")).expect("scan.json");
+    for s in ["s1", "s2"] {
+        let t = report.sensors.iter().find(|t| t.sensor == s).expect(s);
+        assert_eq!(t.points, 0, "{s}");
+        assert!(
+            report
+                .warnings
+                .iter()
+                .any(|w| w.contains(&format!("sensor {s} ")) && w.contains("no points")),
+            "{s}: {:?}",
+            report.warnings
+        );
+        assert!(written.contains(&format!("sensor {s} reconstructed no points")));
+    }
+    let part = ris_daemon::scan::Part::prepare(&config.parts[0]).expect("part");
+    let err = ris_daemon::scan::run(
+        "mock",
+        &mut pairs,
+        ScanOptions {
+            part: Some(&part),
+            ..single
+        },
+        data.path(),
+        "b",
+        &|| false,
+        &|_| {},
+    )
+    .expect_err("no verdict on no points");
+    let msg = format!("{err:#}");
+    assert!(
+        msg.contains("part panel") && msg.contains("sensor s1 ") && msg.contains("sensor s2 "),
+        "{msg}"
+    );
 }
 
 #[test]

@@ -984,6 +984,9 @@ fn main() -> Result<()> {
                     .as_f64()
                     .unwrap_or(f64::NAN)
             );
+            for w in r.done["warnings"].as_array().into_iter().flatten() {
+                println!("warning: {}", w.as_str().unwrap_or_default());
+            }
             if let Some(v) = &r.verdict {
                 println!("inspection: {}", v.to_uppercase());
             }

@@ -196,6 +196,9 @@ fn main() -> Result<()> {
         "scan {} of cell {}: {} merged points (written in {:.2}–{:.2} s), {:.2} s of computation after the last frame, {:.1} s in all",
         report.scan_id, report.cell, report.merged_points, report.merge.0, report.merge.1, report.compute_after_last_frame, report.total
     );
+    for w in &report.warnings {
+        println!("warning: {w}");
+    }
     if let Some(i) = &report.inspection {
         println!(
             "part {}: {} (deviation mean {:+.3} mm, RMS {:.3} mm, {:.1} % within tolerance; {:.1} s)",

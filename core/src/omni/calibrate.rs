@@ -830,24 +830,10 @@ fn find_dots(
         .filter(|b| b[0].is_finite())
         .map(|b| [b[0], b[1]])
         .collect();
-    let mut flat: Vec<([f64; 2], f64)> = Vec::new();
-    for (i, col) in predicted.iter().enumerate() {
-        for (j, p) in col.iter().enumerate() {
-            if let Some(p) = p {
-                let mut s = f64::INFINITY;
-                for (a, b) in [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)] {
-                    let ii = (i as i64 + a).rem_euclid(columns as i64) as usize;
-                    let jj = j as i64 + b;
-                    if jj >= 0 && (jj as usize) < rows {
-                        if let Some(q) = predicted[ii][jj as usize] {
-                            s = s.min((q[0] - p[0]).hypot(q[1] - p[1]));
-                        }
-                    }
-                }
-                flat.push((*p, s));
-            }
-        }
-    }
+    let flat: Vec<([f64; 2], f64)> = spaced(&predicted)
+        .into_iter()
+        .map(|(_, _, p, s)| (p, s))
+        .collect();
     let similarity = align(&flat, &found, centre);
     for p in predicted.iter_mut().flatten().flatten() {
         *p = similarity(*p);
@@ -855,31 +841,7 @@ fn find_dots(
     // Each blob to the predicted dot nearest it, within 0.35 of the spacing there.
     let mut grid: Vec<Vec<Option<[f64; 2]>>> = vec![vec![None; rows]; columns];
     let mut claims: Vec<Vec<u32>> = vec![vec![0; rows]; columns];
-    let mut index: Vec<(usize, usize, [f64; 2])> = Vec::new();
-    for (i, col) in predicted.iter().enumerate() {
-        for (j, p) in col.iter().enumerate() {
-            if let Some(p) = p {
-                index.push((i, j, *p));
-            }
-        }
-    }
-    let spacing = |i: usize, j: usize, p: [f64; 2]| {
-        let mut s = f64::INFINITY;
-        for (a, b) in [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)] {
-            let ii = (i as i64 + a).rem_euclid(columns as i64) as usize;
-            let jj = j as i64 + b;
-            if jj >= 0 && (jj as usize) < rows {
-                if let Some(q) = predicted[ii][jj as usize] {
-                    s = s.min((q[0] - p[0]).hypot(q[1] - p[1]));
-                }
-            }
-        }
-        s
-    };
-    let tree: Vec<(usize, usize, [f64; 2], f64)> = index
-        .into_iter()
-        .map(|(i, j, p)| (i, j, p, spacing(i, j, p)))
-        .collect();
+    let tree = spaced(&predicted);
     let expected = tree.len();
     for b in blobs.iter().filter(|b| b[0].is_finite()) {
         let nearest = tree
@@ -904,6 +866,31 @@ fn find_dots(
         }
     }
     (grid, found, expected)
+}
+
+/// Every predicted dot (azimuth column i, row j) with the distance to its nearest predicted
+/// neighbour along the grid (columns wrap round the mirror).
+fn spaced(predicted: &[Vec<Option<[f64; 2]>>]) -> Vec<(usize, usize, [f64; 2], f64)> {
+    let columns = predicted.len() as i64;
+    let mut out = Vec::new();
+    for (i, col) in predicted.iter().enumerate() {
+        for (j, p) in col.iter().enumerate() {
+            let Some(p) = *p else { continue };
+            let mut s = f64::INFINITY;
+            for (a, b) in [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)] {
+                let ii = (i as i64 + a).rem_euclid(columns) as usize;
+                let jj = j as i64 + b;
+                if let Some(Some(q)) = usize::try_from(jj)
+                    .ok()
+                    .and_then(|jj| predicted[ii].get(jj))
+                {
+                    s = s.min((q[0] - p[0]).hypot(q[1] - p[1]));
+                }
+            }
+            out.push((i, j, p, s));
+        }
+    }
+    out
 }
 
 /// The similarity about `centre` (scale, turn, shift) that best carries the predicted points

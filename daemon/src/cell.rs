@@ -54,7 +54,6 @@ pub struct Cell {
     pub parts: Vec<Part>,
     keep_captures: bool,
     e57: bool,
-    range_mm: Option<[f64; 2]>,
 }
 
 impl Cell {
@@ -71,7 +70,6 @@ impl Cell {
             parts,
             keep_captures: config.storage.keep_captures,
             e57: config.storage.e57,
-            range_mm: config.single_shot.range_mm,
         })
     }
 
@@ -93,7 +91,6 @@ impl Cell {
             part: job.part.and_then(|i| self.parts.get(i)),
             tag: job.tag.as_deref(),
             mode: job.mode,
-            range_mm: self.range_mm,
         };
         scan::run(
             &self.name,

@@ -171,6 +171,10 @@ pub struct SensorSection {
     /// The capture set a `replay` pair serves (a kept scan's `captures/<sensor>`).
     #[serde(default)]
     pub recording: Option<PathBuf>,
+    /// Distances drawn red and blue in this sensor's fusion pictures or panoramas, mm
+    /// (default: the cell's `[single_shot] range_mm`): sensors at different standoffs.
+    #[serde(default)]
+    pub range_mm: Option<[f64; 2]>,
 }
 
 /// `[[part]]`: a part the cell inspects.
@@ -416,6 +420,8 @@ pub struct SensorConfig {
     pub settle: std::time::Duration,
     /// Longest wait for one frame.
     pub frame_timeout: std::time::Duration,
+    /// Fusion picture range of this sensor, mm (`None`: the cell's).
+    pub range_mm: Option<[f64; 2]>,
 }
 
 /// A validated part.
@@ -706,6 +712,14 @@ impl CellConfig {
                     ));
                 }
             }
+            if let Some([near, far]) = s.range_mm {
+                if !(near.is_finite() && far.is_finite() && near >= 0.0 && near < far) {
+                    return Err(field(
+                        &f("range_mm"),
+                        format!("[{near}, {far}]: need 0 <= near < far (mm)"),
+                    ));
+                }
+            }
             if !(s.settle_ms.is_finite() && (0.0..=10_000.0).contains(&s.settle_ms)) {
                 return Err(field(
                     &f("settle_ms"),
@@ -796,6 +810,7 @@ impl CellConfig {
                 trigger,
                 settle: std::time::Duration::from_secs_f64(s.settle_ms / 1000.0),
                 frame_timeout: std::time::Duration::from_secs_f64(s.frame_timeout_ms / 1000.0),
+                range_mm: s.range_mm,
             });
         }
         let mut parts: Vec<PartConfig> = Vec::new();

@@ -63,6 +63,9 @@ pub struct Pair {
     /// Single-shot scans and streams (every scan of an omni sensor): the pattern and its
     /// decoding, or why this pair cannot.
     pub(crate) single_shot: std::result::Result<Arc<OneShot>, String>,
+    /// Distances drawn red and blue in its pictures, mm: the sensor's `range_mm`, else the
+    /// cell's (`None`: each frame's own spread).
+    pub(crate) range_mm: Option<[f64; 2]>,
 }
 
 impl Pair {
@@ -353,6 +356,7 @@ pub fn open(s: &SensorConfig, single: &SingleShotSection, seed: u64) -> Result<P
         exposure_us: s.exposure_us,
         state: DriverState::Connected,
         single_shot,
+        range_mm: s.range_mm.or(single.range_mm),
     })
 }
 

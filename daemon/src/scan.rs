@@ -244,9 +244,6 @@ pub struct ScanOptions<'a> {
     pub tag: Option<&'a str>,
     /// How the pairs acquire.
     pub mode: ScanMode,
-    /// Distances drawn red and blue in the pictures of one-frame measurements (the cell's
-    /// `[single_shot] range_mm`; `None`: each frame's own spread).
-    pub range_mm: Option<[f64; 2]>,
 }
 
 /// Scan with the pairs `options` selects and write the result into
@@ -345,6 +342,7 @@ fn scan_into(
         Option<Arc<Reconstructor>>,
         nalgebra::Matrix4<f64>,
         Option<Arc<OneShot>>,
+        Option<[f64; 2]>,
     );
     let recs: Vec<PairCompute> = pairs
         .iter()
@@ -354,6 +352,7 @@ fn scan_into(
                 p.reconstructor.clone(),
                 p.to_common,
                 p.single_shot.as_ref().ok().cloned(),
+                p.range_mm,
             )
         })
         .collect();
@@ -393,7 +392,7 @@ fn scan_into(
             let mut merger = Merger::new(MERGE_RADIUS);
             let mut done = Vec::new();
             for (i, capture) in rx {
-                let (name, rec, to_common, single) = &recs[i];
+                let (name, rec, to_common, single, range_mm) = &recs[i];
                 state(&ScanState::Reconstructing {
                     sensor: name.clone(),
                 });
@@ -411,7 +410,7 @@ fn scan_into(
                         .with_context(|| format!("sensor {name}: decoding its one frame"))?;
                     // What an operator looks at: the fusion image, or an omni sensor's panorama.
                     let (png, _) = one
-                        .picture(image, &f, options.range_mm)
+                        .picture(image, &f, *range_mm)
                         .with_context(|| format!("sensor {name}: its picture"))?;
                     ris_core::io::write_atomic(&dir.join(format!("{name}.png")), &png)
                         .with_context(|| format!("writing the picture of {name}"))?;

@@ -368,7 +368,7 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
                     config.storage.clone(),
                 );
                 let w_ros2 = ros2.clone();
-                let (w_streams, w_single) = (streams.clone(), config.single_shot.clone());
+                let w_streams = streams.clone();
                 let (Some(rx), Some(gone)) = (rx.take(), worker_gone_tx.take()) else {
                     break Err(anyhow!("the scan worker was started twice"));
                 };
@@ -385,7 +385,6 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
                             storage: &storage,
                             ros2: w_ros2.as_deref(),
                             streams: &w_streams,
-                            single_shot: &w_single,
                         };
                         worker_loop(rx, cell_ready, &ctx);
                         drop(gone);
@@ -699,7 +698,6 @@ struct WorkerContext<'a> {
     storage: &'a crate::config::StorageSection,
     ros2: Option<&'a crate::ros2::Bridge>,
     streams: &'a StreamControl,
-    single_shot: &'a crate::config::SingleShotSection,
 }
 
 fn worker_loop(rx: mpsc::Receiver<Job>, mut cell: Cell, ctx: &WorkerContext) {
@@ -718,7 +716,6 @@ fn worker_loop(rx: mpsc::Receiver<Job>, mut cell: Cell, ctx: &WorkerContext) {
             let out = stream::Publish {
                 session: ctx.session,
                 cell: ctx.cell,
-                config: ctx.single_shot,
                 stopping: &stopping,
                 beat: &beat,
             };

@@ -20,7 +20,7 @@ use zenoh::qos::CongestionControl;
 use zenoh::{Session, Wait};
 
 use crate::cell::Cell;
-use crate::config::{SingleShotSection, MAX_RATE_HZ};
+use crate::config::MAX_RATE_HZ;
 use crate::protocol::{echo, MAX_REQUEST};
 
 /// `ris/<cell>/stream`: start, stop or ask about the stream.
@@ -394,8 +394,6 @@ pub struct Publish<'a> {
     pub session: &'a Session,
     /// Cell name.
     pub cell: &'a str,
-    /// The cell's single-shot settings (the fusion range).
-    pub config: &'a SingleShotSection,
     /// Whether risd is stopping.
     pub stopping: &'a (dyn Fn() -> bool + Sync),
     /// Called every round: the worker's sign of life.
@@ -485,6 +483,7 @@ fn stream<J>(
                 p.name.clone(),
                 p.to_common,
                 p.single_shot.clone().map_err(|why| anyhow!(why)),
+                p.range_mm,
             )
         })
         .collect();
@@ -609,13 +608,14 @@ type Computer = (
     String,
     nalgebra::Matrix4<f64>,
     Result<Arc<crate::single_shot::OneShot>>,
+    Option<[f64; 2]>,
 );
 
 /// Compute one frame and publish its cloud (cell frame, binary PLY) and picture (PNG: the
 /// fusion image, or an omni sensor's panorama), each with the attachment `{"frame",
 /// "timestamp_ns", "points", "latency_ms", "range_mm"}`.
 fn publish_frame(
-    (name, to_common, single): &Computer,
+    (name, to_common, single, range_mm): &Computer,
     c: Captured,
     generation: u64,
     control: &StreamControl,
@@ -623,7 +623,7 @@ fn publish_frame(
 ) -> Result<()> {
     let single = single.as_ref().map_err(|e| anyhow!("{e:#}"))?;
     let f = single.measure(&c.image)?;
-    let (picture, range) = single.picture(&c.image, &f, out.config.range_mm)?;
+    let (picture, range) = single.picture(&c.image, &f, *range_mm)?;
     let mut cloud = f.cloud;
     for p in cloud.points.iter_mut() {
         let v = to_common

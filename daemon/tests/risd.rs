@@ -105,6 +105,8 @@ fn config_errors_name_the_field() {
         (&format!("{ok}gain_db = -3.0\n"), "sensor[0].gain_db"),
         (&format!("{ok}settle_ms = 1e9\n"), "sensor[0].settle_ms"),
         (&format!("{ok}frame_timeout_ms = 0\n"), "sensor[0].frame_timeout_ms"),
+        (&format!("{ok}range_mm = [1800.0, 1400.0]\n"), "sensor[0].range_mm"),
+        (&format!("{ok}range_mm = [-1.0, 5.0]\n"), "sensor[0].range_mm"),
         (
             "[cell]\nname = \"c\"\n[[sensor]]\nname = \"s1\"\nbackend = \"replay\"\nscene = \"x.toml\"\n",
             "sensor[0].recording",

@@ -61,11 +61,16 @@ fn risd_streams_single_shot_clouds_and_answers_pixel_queries() {
     let dir = tempfile::tempdir().expect("tmp");
     let config_dir = repo().join("config");
     let mock = std::fs::read_to_string(config_dir.join("mock-cell.toml")).expect("mock cell");
-    let config = mock.replace(
-        "\"mock-cell/",
-        &format!("\"{}/mock-cell/", config_dir.display()),
-    )
-        + "\n[single_shot]\nstep = [14, 14]\nrate_hz = 20.0\nrange_mm = [1450.0, 1650.0]\n";
+    // s2 draws its own range; s1 the cell's.
+    let config =
+        mock.replace(
+            "\"mock-cell/",
+            &format!("\"{}/mock-cell/", config_dir.display()),
+        )
+        .replace(
+            "name = \"s2\"\n",
+            "name = \"s2\"\nrange_mm = [1400.0, 1700.0]\n",
+        ) + "\n[single_shot]\nstep = [14, 14]\nrate_hz = 20.0\nrange_mm = [1450.0, 1650.0]\n";
     let config_path = dir.path().join("cell.toml");
     std::fs::write(&config_path, &config).expect("config");
     let cell =
@@ -202,7 +207,12 @@ fn risd_streams_single_shot_clouds_and_answers_pixel_queries() {
             .expect("a PNG")
             .into_rgb8();
         assert_eq!((picture.width(), picture.height()), (920, 600));
-        assert_eq!(fused[0].2["range_mm"], serde_json::json!([1450.0, 1650.0]));
+        let range = if sensor == "s2" {
+            [1400.0, 1700.0]
+        } else {
+            [1450.0, 1650.0]
+        };
+        assert_eq!(fused[0].2["range_mm"], serde_json::json!(range), "{sensor}");
         // What `ris stream` kept.
         assert!(
             out.join(format!("{sensor}.ply")).exists()

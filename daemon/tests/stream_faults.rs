@@ -6,7 +6,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use ris_daemon::cell::Cell;
-use ris_daemon::config::{CellConfig, SingleShotSection};
+use ris_daemon::config::CellConfig;
 use ris_daemon::stream::{self, Publish, StreamControl, StreamEnd, StreamSpec};
 use ris_drivers::mock::Fault;
 use zenoh::Wait;
@@ -28,11 +28,9 @@ fn a_missed_frame_is_skipped_and_a_lost_camera_ends_the_stream_with_its_reason()
         zenoh::open(ris_daemon::service::zenoh_config("peer", &[], &[]).expect("zenoh config"))
             .wait()
             .expect("session");
-    let single = SingleShotSection::default();
     let out = Publish {
         session: &session,
         cell: "faults",
-        config: &single,
         stopping: &|| false,
         beat: &|| {},
     };

@@ -8,7 +8,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 mod common;
-use common::{free_port, output_within};
+use common::{free_port, output_within, Risd};
 
 fn repo() -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
@@ -34,32 +34,16 @@ fn independent_zenoh_client_scans_twice_then_sigterm_stops_cleanly() {
     );
     let data = tempfile::tempdir().expect("tmp");
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
-    let mut risd = Command::new(env!("CARGO_BIN_EXE_risd"))
-        .arg("--config")
-        .arg(repo().join("config/mock-cell.toml"))
-        .args(["--listen", &endpoint, "--data-dir"])
-        .arg(data.path())
-        .env("RIS_LOG", "info")
-        .env("NO_COLOR", "1")
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("risd");
-    let stderr = risd.stderr.take().expect("stderr");
-    let (ready_tx, ready_rx) = std::sync::mpsc::channel();
-    let log = std::thread::spawn(move || {
-        let mut lines = Vec::new();
-        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-            if line.contains("risd ready") {
-                let _ = ready_tx.send(());
-            }
-            lines.push(line);
-        }
-        lines
-    });
-    if ready_rx.recv_timeout(Duration::from_secs(120)).is_err() {
-        let _ = risd.kill();
-        panic!("risd never became ready: {:?}", log.join());
-    }
+    let config = repo().join("config/mock-cell.toml");
+    let mut risd = Risd::start(&[
+        "--config".as_ref(),
+        config.as_os_str(),
+        "--listen".as_ref(),
+        endpoint.as_ref(),
+        "--data-dir".as_ref(),
+        data.path().as_os_str(),
+    ]);
+    risd.wait_ready(Duration::from_secs(120));
     let client = output_within(
         Command::new("python3")
             .arg("-u")
@@ -83,18 +67,7 @@ fn independent_zenoh_client_scans_twice_then_sigterm_stops_cleanly() {
     let scan_out = ris_scan(&["--sensor", "s1", "--sensor", "s2", "--tag", "ris scan"]);
     let refused = ris_scan(&["--sensor", "s9"]);
     let t = Instant::now();
-    signal(risd.id(), "-TERM");
-    let status = loop {
-        if let Some(s) = risd.try_wait().expect("wait") {
-            break s;
-        }
-        if t.elapsed() > Duration::from_secs(15) {
-            let _ = risd.kill();
-            panic!("risd did not stop within 15 s of SIGTERM");
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    };
-    let lines = log.join().expect("log");
+    let (status, lines) = risd.terminate();
     assert!(
         client.status.success(),
         "client failed; risd log: {lines:#?}"

@@ -527,19 +527,12 @@ fn scan_into(
             (m, d, t, clouds)
         })
     })?;
-    let mut warnings = Vec::new();
     for (i, (points, outside), compute, stages) in done {
         timings[i].compute = compute;
         timings[i].stages = stages;
         timings[i].points = points;
         timings[i].outside_volume = outside;
-        if points == 0 {
-            tracing::warn!(sensor = %timings[i].sensor, "no points reconstructed");
-            warnings.push(format!(
-                "sensor {} reconstructed no points: the merged cloud lacks its view (a covered lens or projector, nothing in view, or a pattern finer than its camera resolves)",
-                timings[i].sensor
-            ));
-        }
+
         if outside > 0 {
             tracing::warn!(
                 sensor = %timings[i].sensor,
@@ -548,6 +541,16 @@ fn scan_into(
                 "points outside the sensor's calibrated volume"
             );
         }
+    }
+    let warnings = empty_views(
+        timings
+            .iter()
+            .zip(selected)
+            .filter(|(_, s)| **s)
+            .map(|(t, _)| t),
+    );
+    for w in &warnings {
+        tracing::warn!("{w}");
     }
     let inspection = match options.part {
         Some(part) => Some(inspect_part(
@@ -589,6 +592,21 @@ fn scan_into(
         crate::page::write_report_page(dir)?;
     }
     Ok(report)
+}
+
+/// A warning for each sensor that reconstructed no points: its view is missing from the
+/// merged cloud, which nothing else in the report would show.
+pub fn empty_views<'a>(sensors: impl IntoIterator<Item = &'a SensorTiming>) -> Vec<String> {
+    sensors
+        .into_iter()
+        .filter(|t| t.points == 0)
+        .map(|t| {
+            format!(
+                "sensor {} reconstructed no points: the merged cloud lacks its view (a covered lens or projector, nothing in view, or a pattern finer than its camera resolves)",
+                t.sensor
+            )
+        })
+        .collect()
 }
 
 /// A pair's recorded capture set and how it was made.

@@ -46,6 +46,23 @@ impl PairSingleShot {
                 "sensor {sensor}: its reference recording has no row codes, which single-shot decoding needs"
             ));
         }
+        // A step the camera cannot resolve gives empty clouds: refused here, with the reason,
+        // so health names it instead of scans returning nothing.
+        if let Some(spacing) = single_shot::camera_spacing(&reference, config.step) {
+            let least = spacing[0].min(spacing[1]);
+            if least < single_shot::MIN_CAMERA_SPACING {
+                let scale = single_shot::MIN_CAMERA_SPACING / least;
+                return Err(anyhow!(
+                    "sensor {sensor}: X-points {:.1} × {:.1} camera pixels apart at [single_shot] step {:?}; the detector needs {} or more: a step of at least [{}, {}]",
+                    spacing[0],
+                    spacing[1],
+                    config.step,
+                    single_shot::MIN_CAMERA_SPACING,
+                    (f64::from(config.step[0]) * scale).ceil(),
+                    (f64::from(config.step[1]) * scale).ceil()
+                ));
+            }
+        }
         let pattern = XPointPattern::generate(width, height, config.step, 3, config.seed)
             .with_context(|| format!("sensor {sensor}: the X-point pattern"))?;
         let slide = Slide::picture(width, height, &pattern.render());

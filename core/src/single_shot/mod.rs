@@ -12,4 +12,6 @@ pub use decode::{decode, Correspondence, DecodeStats, Predict, CUT_ELONGATION, O
 pub use detect::{detect, DetectParams, Detection, Detector};
 pub use fusion::{fuse, fuse_from, Fused, FusionRange};
 pub use pattern::{PatternSection, Primitives, XPointPattern, MIN_STEP};
-pub use reconstruct::{measure, reconstruct, Measured, ReferencePrediction};
+pub use reconstruct::{
+    camera_spacing, measure, reconstruct, Measured, ReferencePrediction, MIN_CAMERA_SPACING,
+};

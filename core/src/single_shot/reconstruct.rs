@@ -57,6 +57,57 @@ impl<'a> ReferencePrediction<'a> {
     }
 }
 
+/// Fewest camera pixels between neighbouring X-points for [`super::detect`] with its default
+/// settings: closer, its 5 px disc about a corner takes in the neighbours' light. On the mock
+/// cell (camera and projector pixels nearly 1:1) a step of 12 projector pixels (12.4 camera
+/// pixels at the least) decodes whole, and steps of 10 and 11 (11.4) find nothing.
+pub const MIN_CAMERA_SPACING: f64 = 12.0;
+
+/// The median camera distance, pixels, between neighbouring X-points of a pattern with grid
+/// `step` (projector pixels) along the projector's rows and columns, from the decoded reference's
+/// local Jacobian (its column and row maps, every 4th pixel); `None` without row codes or
+/// enough valid pixels.
+pub fn camera_spacing(reference: &Decoded, step: [u32; 2]) -> Option<[f64; 2]> {
+    let rows = reference.row.as_deref()?;
+    let (w, h) = (reference.width as usize, reference.height as usize);
+    let col = &reference.col;
+    let (mut along_x, mut along_y) = (Vec::new(), Vec::new());
+    for y in (0..h.saturating_sub(1)).step_by(4) {
+        for x in (0..w.saturating_sub(1)).step_by(4) {
+            let i = y * w + x;
+            let (c, r) = (col[i], rows[i]);
+            let (cx, rx, cy, ry) = (col[i + 1], rows[i + 1], col[i + w], rows[i + w]);
+            if ![c, r, cx, rx, cy, ry].iter().all(|v| v.is_finite()) {
+                continue;
+            }
+            // d(projector)/d(camera), inverted: camera pixels per projector pixel.
+            let (a, b, cc, d) = (
+                f64::from(cx - c),
+                f64::from(cy - c),
+                f64::from(rx - r),
+                f64::from(ry - r),
+            );
+            let det = a * d - b * cc;
+            if det.abs() < 1e-9 {
+                continue;
+            }
+            // Camera vectors of one projector pixel along its columns (x) and rows (y).
+            let (ux, uy) = (d / det, -cc / det);
+            let (vx, vy) = (-b / det, a / det);
+            along_x.push(f64::from(step[0]) * ux.hypot(uy));
+            along_y.push(f64::from(step[1]) * vx.hypot(vy));
+        }
+    }
+    if along_x.len() < 16 {
+        return None;
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    Some([median(&mut along_x), median(&mut along_y)])
+}
+
 /// The cloud of `matches` through `rec`: one point per X-point, organised by the camera pixel
 /// nearest its corner, its confidence 1 − the corner's asymmetry (halved where a grid
 /// neighbour is missing), flagged outside the sensor's calibrated volume where it states one.

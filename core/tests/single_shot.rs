@@ -39,6 +39,25 @@ struct Outcome {
 }
 
 impl Outcome {
+    /// One line of what was decoded and measured, the same for both families.
+    fn summary(&self) -> String {
+        format!(
+            "{} of {} visible primitives decoded ({:.1} %), {} decoded in all, {} wrong, {} at depth edges, mean {:.3} px; {} points, mean |3D error| {:.3} mm over {}, {} beyond 2 mm ({} flagged)",
+            self.decoded_visible,
+            self.visible,
+            100.0 * self.rate(),
+            self.decoded,
+            self.wrong,
+            self.at_edges,
+            self.mean_px,
+            self.points,
+            self.mean_mm,
+            self.measured,
+            self.far,
+            self.far_flagged
+        )
+    }
+
     /// The share of the primitives the camera sees that were decoded.
     fn rate(&self) -> f64 {
         self.decoded_visible as f64 / self.visible.max(1) as f64
@@ -423,17 +442,7 @@ fn decoded_x_points_are_the_primitives_that_light_them() {
         f.camera.noise = rng.range(1.0, 3.0);
         f.render.seed = case + 1;
         let o = run(f, step, 100 + case);
-        let rate = o.rate();
-        eprintln!(
-            "case {case} step {step:?}: {} of {} visible primitives decoded ({:.1} %), {} decoded in all, {} wrong, {} off at depth edges, mean error {:.3} px",
-            o.decoded_visible,
-            o.visible,
-            100.0 * rate,
-            o.decoded,
-            o.wrong,
-            o.at_edges,
-            o.mean_px
-        );
+        eprintln!("case {case} step {step:?}: {}", o.summary());
         assert!(
             (o.at_edges as f64) <= 0.005 * o.decoded as f64,
             "case {case}: {} of {} off at depth edges",
@@ -441,10 +450,6 @@ fn decoded_x_points_are_the_primitives_that_light_them() {
             o.decoded
         );
         assert!(o.mean_px < 0.2, "case {case}: mean {:.3} px", o.mean_px);
-        eprintln!(
-            "case {case}: {} points, mean |3D error| {:.3} mm over {}, {} beyond 2 mm",
-            o.points, o.mean_mm, o.measured, o.far
-        );
         assert!(
             o.points + 10 >= o.decoded,
             "case {case}: {} points of {}",
@@ -574,21 +579,9 @@ fn independent_renders_decode_to_the_surface() {
             String::from_utf8_lossy(&py.stderr)
         );
         let o = decode_independent(&pattern, &at);
-        let rate = o.rate();
         eprintln!(
-            "independent scene {case} step {step:?} noise {noise:.1} texture {texture:.2}: {} of {} visible primitives decoded ({:.1} %), {} decoded, {} wrong, {} at depth edges, {:.3} px; {} points, mean {:.3} mm over {}, {} beyond 2 mm ({} flagged)",
-            o.decoded_visible,
-            o.visible,
-            100.0 * rate,
-            o.decoded,
-            o.wrong,
-            o.at_edges,
-            o.mean_px,
-            o.points,
-            o.mean_mm,
-            o.measured,
-            o.far,
-            o.far_flagged
+            "independent scene {case} step {step:?} noise {noise:.1} texture {texture:.2}: {}",
+            o.summary()
         );
         assert!(
             o.mean_mm <= mean_bound,

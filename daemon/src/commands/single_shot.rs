@@ -59,6 +59,16 @@ pub fn run(
             reference_dir.display()
         )
     })?;
+    if let Some(spacing) = single_shot::camera_spacing(&reference, pattern.pattern.step) {
+        if spacing[0].min(spacing[1]) < single_shot::MIN_CAMERA_SPACING {
+            eprintln!(
+                "warning: the X-points lie {:.1} × {:.1} camera pixels apart; the detector needs {} or more, and finds few or none",
+                spacing[0],
+                spacing[1],
+                single_shot::MIN_CAMERA_SPACING
+            );
+        }
+    }
     let prepare = t.elapsed();
     let img = GrayImage::load(image).with_context(|| format!("reading {}", image.display()))?;
     if (img.width, img.height) != (s.camera.width, s.camera.height) {

@@ -467,6 +467,12 @@ pub const MAX_THREADS: usize = 1024;
 /// Longest exposure, µs.
 pub const MAX_EXPOSURE_US: f64 = 10_000_000.0;
 
+/// Why a picture's distance range `[near, far]` (mm) is unusable, if it is.
+fn range_error([near, far]: [f64; 2]) -> Option<String> {
+    (!(near.is_finite() && far.is_finite() && near >= 0.0 && near < far))
+        .then(|| format!("[{near}, {far}]: need 0 <= near < far (mm)"))
+}
+
 /// Check Zenoh endpoints (`proto/host:port`, a port within 1 … 65535 for the IP transports),
 /// naming `key` (e.g. `zenoh.listen`, or `--listen`) in the error.
 pub fn check_endpoints(ctx: &str, key: &str, list: &[String]) -> Result<()> {
@@ -712,13 +718,8 @@ impl CellConfig {
                     ));
                 }
             }
-            if let Some([near, far]) = s.range_mm {
-                if !(near.is_finite() && far.is_finite() && near >= 0.0 && near < far) {
-                    return Err(field(
-                        &f("range_mm"),
-                        format!("[{near}, {far}]: need 0 <= near < far (mm)"),
-                    ));
-                }
+            if let Some(why) = s.range_mm.and_then(range_error) {
+                return Err(field(&f("range_mm"), why));
             }
             if !(s.settle_ms.is_finite() && (0.0..=10_000.0).contains(&s.settle_ms)) {
                 return Err(field(
@@ -880,13 +881,8 @@ impl CellConfig {
                 ),
             ));
         }
-        if let Some([near, far]) = single_shot.range_mm {
-            if !(near.is_finite() && far.is_finite() && near >= 0.0 && near < far) {
-                return Err(field(
-                    "single_shot.range_mm",
-                    format!("[{near}, {far}]: need 0 <= near < far (mm)"),
-                ));
-            }
+        if let Some(why) = single_shot.range_mm.and_then(range_error) {
+            return Err(field("single_shot.range_mm", why));
         }
         if !(single_shot.rate_hz.is_finite()
             && single_shot.rate_hz > 0.0

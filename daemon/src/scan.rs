@@ -532,7 +532,6 @@ fn scan_into(
         timings[i].stages = stages;
         timings[i].points = points;
         timings[i].outside_volume = outside;
-
         if outside > 0 {
             tracing::warn!(
                 sensor = %timings[i].sensor,

@@ -89,6 +89,17 @@ const STEPS: [f64; P] = [
     1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4, 1e-3, 1e-3, 1e-3, 1e-3, 1e-5,
 ];
 
+/// The unit with each parameter in turn moved by its finite-difference step.
+fn shifted(nominal: &MirrorUnit, p: &SVector<f64, P>) -> Vec<MirrorUnit> {
+    (0..P)
+        .map(|k| {
+            let mut q = *p;
+            q[k] += STEPS[k];
+            apply(nominal, &q)
+        })
+        .collect()
+}
+
 /// JᵀWJ and JᵀWr of the residuals at `p` (W: Cauchy weights with scale `c`, or 1).
 fn normal_equations(
     nominal: &MirrorUnit,
@@ -97,13 +108,7 @@ fn normal_equations(
     c: Option<f64>,
 ) -> (SMatrix<f64, P, P>, SVector<f64, P>) {
     let unit = apply(nominal, p);
-    let shifted: Vec<MirrorUnit> = (0..P)
-        .map(|k| {
-            let mut q = *p;
-            q[k] += STEPS[k];
-            apply(nominal, &q)
-        })
-        .collect();
+    let shifted = shifted(nominal, p);
     obs.par_iter()
         .map(|o| {
             let r0 = residual(&unit, o);
@@ -145,13 +150,7 @@ fn ray_sd_deg(nominal: &MirrorUnit, p: &SVector<f64, P>, obs: &[([f64; 2], Vec3)
         return f64::INFINITY;
     };
     let cov = inverse * s2;
-    let shifted: Vec<MirrorUnit> = (0..P)
-        .map(|k| {
-            let mut q = *p;
-            q[k] += STEPS[k];
-            apply(nominal, &q)
-        })
-        .collect();
+    let shifted = shifted(nominal, p);
     let (w, h) = (f64::from(unit.lens.width), f64::from(unit.lens.height));
     let mut worst: f64 = 0.0;
     for gy in 0..18 {
@@ -245,6 +244,7 @@ pub fn fit_unit(nominal: &MirrorUnit, obs: &[([f64; 2], Vec3)]) -> (MirrorUnit, 
             UnitFit {
                 observations: [0, obs.len()],
                 nominal_rms_px: nominal_rms,
+                ray_sd_deg: f64::INFINITY,
                 ..UnitFit::default()
             },
         );
@@ -293,6 +293,25 @@ mod tests {
     use super::*;
     use crate::omni::OmniSensor;
 
+    /// The largest angle between the two units' rays over a 16 px grid of a 640×480 image,
+    /// degrees.
+    fn worst_ray_deg(a: &MirrorUnit, b: &MirrorUnit) -> f64 {
+        let mut worst: f64 = 0.0;
+        for v in (0..480).step_by(16) {
+            for u in (0..640).step_by(16) {
+                let (Some(ra), Some(rb)) = (
+                    a.back_project(f64::from(u), f64::from(v)),
+                    b.back_project(f64::from(u), f64::from(v)),
+                ) else {
+                    continue;
+                };
+                let angle = ra.direction.dot(&rb.direction).clamp(-1.0, 1.0).acos();
+                worst = worst.max(angle.to_degrees());
+            }
+        }
+        worst
+    }
+
     #[test]
     fn a_perturbed_unit_is_recovered_from_its_projections() {
         let seed =
@@ -335,19 +354,7 @@ mod tests {
             "{fit:?}"
         );
         // Rays agree with the truth's across the image.
-        let mut worst: f64 = 0.0;
-        for v in (0..480).step_by(16) {
-            for u in (0..640).step_by(16) {
-                let (Some(a), Some(b)) = (
-                    truth.back_project(f64::from(u), f64::from(v)),
-                    fitted.back_project(f64::from(u), f64::from(v)),
-                ) else {
-                    continue;
-                };
-                let angle = a.direction.dot(&b.direction).clamp(-1.0, 1.0).acos();
-                worst = worst.max(angle.to_degrees());
-            }
-        }
+        let worst = worst_ray_deg(&truth, &fitted);
         assert!(worst < 0.02, "rays up to {worst:.4}° from the truth");
         assert!(fit.ray_sd_deg < MAX_RAY_SD_DEG / 2.0, "{fit:?}");
         // One sector of the view at one distance (a session that saw a target on one side
@@ -359,24 +366,7 @@ mod tests {
             .copied()
             .collect();
         let (loose, fit) = fit_unit(&nominal, &sector);
-        let mut far: f64 = 0.0;
-        for v in (0..480).step_by(16) {
-            for u in (0..640).step_by(16) {
-                let (Some(a), Some(b)) = (
-                    truth.back_project(f64::from(u), f64::from(v)),
-                    loose.back_project(f64::from(u), f64::from(v)),
-                ) else {
-                    continue;
-                };
-                far = far.max(
-                    a.direction
-                        .dot(&b.direction)
-                        .clamp(-1.0, 1.0)
-                        .acos()
-                        .to_degrees(),
-                );
-            }
-        }
+        let far = worst_ray_deg(&truth, &loose);
         eprintln!(
             "sector of {} observations: {fit:?}, rays up to {far:.4}° off",
             sector.len()

@@ -364,6 +364,11 @@ pub fn omni(session: &Path, out: &Path) -> Result<()> {
                 "{unit}: model fitted to {} of {} observations: {:.2} px RMS ({:.2} px at 95 %; the drawn file {:.2} px), rays within {:.4}° (1 sigma, worst pixel), mirror moved {:.2} mm and turned {:.2}°",
                 f.observations[0], f.observations[1], f.rms_px, f.p95_px, f.nominal_rms_px, f.ray_sd_deg, f.moved_mm, f.turned_deg
             );
+        } else if f.observations[0] == 0 {
+            println!(
+                "{unit}: {} observations are too few to fit the mirror model: its rays are each pixel's own two target points, noisier",
+                f.observations[1]
+            );
         } else if f.rms_px > MAX_RMS_PX {
             println!(
                 "{unit}: the mirror model does not fit its observations ({:.2} px RMS, more than {MAX_RMS_PX} px): its rays are each pixel's own two target points, noisier",

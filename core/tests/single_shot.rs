@@ -11,7 +11,7 @@ use ris_core::pattern::{Pattern, ProjectionMask};
 use ris_core::sensor::Reconstructor;
 use ris_core::sim::{Scene, SceneFile, Simulator};
 use ris_core::single_shot::{
-    decode, detect, reconstruct, DetectParams, ReferencePrediction, XPointPattern,
+    camera_spacing, decode, detect, reconstruct, DetectParams, ReferencePrediction, XPointPattern,
 };
 
 mod common;
@@ -63,12 +63,12 @@ impl Outcome {
         self.decoded_visible as f64 / self.visible.max(1) as f64
     }
 
-    /// What both families assert of decoding: enough primitives in view, ≥ 95 % of them
-    /// decoded, ≤ 0.1 % placed wrong, and at most `far_share` of the points beyond 2 mm.
-    fn assert_decoding(&self, label: &str, far_share: f64) {
+    /// What every family asserts of decoding: enough primitives in view, at least `rate` of
+    /// them decoded, ≤ 0.1 % placed wrong, and at most `far_share` of the points beyond 2 mm.
+    fn assert_decoding(&self, label: &str, rate: f64, far_share: f64) {
         assert!(self.visible > 1000, "{label}: {} visible", self.visible);
         assert!(
-            self.rate() >= 0.95,
+            self.rate() >= rate,
             "{label}: {:.1} % decoded",
             100.0 * self.rate()
         );
@@ -104,15 +104,22 @@ fn run(file: SceneFile, step: [u32; 2], seed: u64) -> Outcome {
     let img = sim.frame_with(&sim.layout(), Pattern::White, Some(&mask), 1.0, seed);
     let (w, h) = (img.width as usize, img.height as usize);
     let levels = img.to_levels();
-    let found = detect(&levels, w, h, &DetectParams::default());
     // The Gray-code reference (the bare plane, decoded) predicts each camera point's projector
-    // position and gives the parallax model, as a sensor file's [reference] does.
+    // position and gives the parallax model, as a sensor file's [reference] does; the detector
+    // is set for the X-points' spacing in the camera, as risd sets it.
     let layout = sim.layout();
     let dec_ref = ris_core::decode::decode(
         &Simulator::new(scene.reference()).capture(&layout, 1000 + seed, &|_, _| {}),
         &ris_core::decode::DecodeParams::default(),
     )
     .expect("reference");
+    let spacing = camera_spacing(&dec_ref, step).expect("spacing");
+    let params = DetectParams::for_spacing(spacing);
+    eprintln!(
+        "spacing {spacing:.1?} px: radius {:.2} sigma {:.2}",
+        params.radius, params.sigma
+    );
+    let found = detect(&levels, w, h, &params);
     let reference = ReferencePrediction::new(&dec_ref).expect("row codes");
     let predict = |x: f64, y: f64| reference.at(x, y);
     let (matches, stats) = decode(&found, &pattern, Some(&predict));
@@ -466,8 +473,34 @@ fn decoded_x_points_are_the_primitives_that_light_them() {
             o.far_flagged,
             o.far
         );
-        o.assert_decoding(&format!("case {case}"), 0.005);
+        o.assert_decoding(&format!("case {case}"), 0.95, 0.005);
         assert!(o.mean_mm <= 0.3, "case {case}: mean {:.3} mm", o.mean_mm);
+    }
+}
+
+/// Patterns finer than the default detector's disc: steps of 9–12 projector pixels, the
+/// closest X-points 8.7–10.7 camera pixels apart, with the detector set for that spacing
+/// (`DetectParams::for_spacing`, as risd and `ris single-shot` set it). With the default
+/// settings the steps of 9 decode under 2 % (the disc takes in the neighbours' light), and
+/// with the spacing's median instead of its 10th percentile, 57–93 %. The bound is 92 %
+/// (93–96 % measured), not the 95 % of the coarser steps.
+#[test]
+fn fine_patterns_decode_with_the_detector_set_for_their_spacing() {
+    let mut rng = Rng(23);
+    for case in 0..3u64 {
+        let mut f = demo_file();
+        let s = rng.range(9.0, 11.99) as u32;
+        let step = [s, s + rng.range(0.0, 1.99) as u32];
+        f.camera.noise = rng.range(1.0, 3.0);
+        f.render.seed = case + 7;
+        let o = run(f, step, 200 + case);
+        eprintln!("fine case {case} step {step:?}: {}", o.summary());
+        o.assert_decoding(&format!("fine case {case}"), 0.92, 0.005);
+        assert!(
+            o.mean_mm <= 0.3,
+            "fine case {case}: mean {:.3} mm",
+            o.mean_mm
+        );
     }
 }
 
@@ -526,7 +559,9 @@ fn decode_independent(pattern: &XPointPattern, dir: &Path) -> Outcome {
     let at = |x: f64, y: f64| predict.at(x, y);
     let image = GrayImage::load(&out.join("image.png")).expect("image");
     let (w, h) = (image.width as usize, image.height as usize);
-    let found = detect(&image.to_levels(), w, h, &DetectParams::default());
+    let params = camera_spacing(&reference, pattern.pattern.step)
+        .map_or_else(DetectParams::default, DetectParams::for_spacing);
+    let found = detect(&image.to_levels(), w, h, &params);
     let (matches, stats) = decode(&found, pattern, Some(&at));
     let cloud = reconstruct(&matches, &rec);
 
@@ -600,6 +635,6 @@ fn independent_renders_decode_to_the_surface() {
             "scene {case}: {unflagged} of {} unflagged beyond 2 mm",
             o.measured
         );
-        o.assert_decoding(&format!("scene {case}"), 0.006);
+        o.assert_decoding(&format!("scene {case}"), 0.95, 0.006);
     }
 }

@@ -13,7 +13,7 @@ use ris_core::image::GrayImage;
 use ris_core::omni::{panorama, OmniSensor, RingDecode, RingDecoder, RingParams};
 use ris_core::sensor::Reconstructor;
 use ris_core::single_shot::{
-    self, fuse, Detector, FusionRange, ReferencePrediction, XPointPattern,
+    self, fuse, DetectParams, Detector, FusionRange, ReferencePrediction, XPointPattern,
 };
 use ris_drivers::Slide;
 
@@ -48,7 +48,8 @@ impl PairSingleShot {
         }
         // A step the camera cannot resolve gives empty clouds: refused here, with the reason,
         // so health names it instead of scans returning nothing.
-        if let Some(spacing) = single_shot::camera_spacing(&reference, config.step) {
+        let spacing = single_shot::camera_spacing(&reference, config.step);
+        if let Some(spacing) = spacing {
             let least = spacing[0].min(spacing[1]);
             if least < single_shot::MIN_CAMERA_SPACING {
                 let scale = single_shot::MIN_CAMERA_SPACING / least;
@@ -71,7 +72,9 @@ impl PairSingleShot {
             slide,
             reference,
             reconstructor,
-            detector: Box::new(Mutex::new(Detector::default())),
+            detector: Box::new(Mutex::new(Detector::new(
+                spacing.map_or_else(DetectParams::default, DetectParams::for_spacing),
+            ))),
         })
     }
 }

@@ -302,33 +302,41 @@ fn once_scans_the_builtin_mock_cell() {
 }
 
 /// An X-point pattern finer than the cameras resolve is refused per pair at open, with the
-/// spacing and the least step that works (steps 8–11 gave empty clouds on the mock cell); a
-/// single-shot scan then fails naming it.
+/// spacing and the least step that works (a step of 8 gives X-points 7.8 camera pixels apart on
+/// the mock cell, and the detector finds a quarter of them); a single-shot scan then fails
+/// naming it. A step of 9 (8.7 px), which the detector set for the spacing resolves, scans whole.
 #[test]
 fn a_pattern_finer_than_the_camera_resolves_is_refused_with_the_step_that_works() {
     let mut config = CellConfig::load(&config_dir().join("mock-cell.toml")).expect("config");
     config.sensors.retain(|s| s.name == "s1");
-    config.single_shot.step = [9, 9];
-    let mut pairs = ris_daemon::pair::open_all(&config, 5).expect("pairs");
-    let data = tempfile::tempdir().expect("tmp");
-    let err = ris_daemon::scan::run(
-        "mock",
-        &mut pairs,
-        ScanOptions {
-            mode: ris_daemon::scan::ScanMode::SingleShot,
-            ..ScanOptions::default()
-        },
-        data.path(),
-        "a",
-        &|| false,
-        &|_| {},
-    )
-    .expect_err("refused");
-    let msg = format!("{err:#}");
+    let scan = |config: &CellConfig| {
+        let mut pairs = ris_daemon::pair::open_all(config, 5).expect("pairs");
+        let data = tempfile::tempdir().expect("tmp");
+        ris_daemon::scan::run(
+            "mock",
+            &mut pairs,
+            ScanOptions {
+                mode: ris_daemon::scan::ScanMode::SingleShot,
+                ..ScanOptions::default()
+            },
+            data.path(),
+            "a",
+            &|| false,
+            &|_| {},
+        )
+    };
+    config.single_shot.step = [8, 8];
+    let msg = format!("{:#}", scan(&config).expect_err("refused"));
     assert!(
-        msg.contains("sensor s1") && msg.contains("step [9, 9]") && msg.contains("[12, 12]"),
+        msg.contains("sensor s1") && msg.contains("step [8, 8]") && msg.contains("[9, 9]"),
         "{msg}"
     );
+    // At [9, 9] the primitives on the parts and the table in view: about 4 100 of them were
+    // decoded when this was written; [12, 12] gives 2 300.
+    config.single_shot.step = [9, 9];
+    let (report, _) = scan(&config).expect("a step of 9 scans");
+    let points = report.sensors.iter().map(|s| s.points).sum::<usize>();
+    assert!(points > 3500, "{points} points at step [9, 9]");
 }
 
 /// Each scanned sensor without a point is named in the scan's warnings.

@@ -8,7 +8,7 @@
 //! from a decoded neighbour when their own value agrees.
 
 use super::code::PERIOD;
-use super::detect::Detection;
+use super::detect::{Detection, WHOLE_LEVEL};
 use super::XPointPattern;
 
 /// A decoded X-point: where the camera saw it and which primitive it is.
@@ -53,6 +53,9 @@ pub struct DecodeStats {
     pub unreadable: usize,
     /// Placements dropped at a boundary as cut by it (see [`CUT_ELONGATION`]).
     pub cut: usize,
+    /// Detections midway between two that read more like corners: the saddle in the gap
+    /// between two primitives whose light faces each other (see [`Detection::level`]).
+    pub gaps: usize,
     /// Propagations refused because the detection lies off the grid its placed neighbours
     /// span (see [`OFF_GRID`]).
     pub off_grid: usize,
@@ -128,10 +131,18 @@ pub fn decode(
     let neigh: Vec<[Option<usize>; 9]> = (0..n)
         .map(|k| neighbours(k, detections, &index, hg, wg))
         .collect();
-    let values: Vec<Option<u8>> = (0..n)
-        .map(|k| value(k, detections, &neigh[k], hg, wg, step))
+    let gap: Vec<bool> = (0..n)
+        .map(|k| between_brighter(k, detections, &index, hg, wg))
         .collect();
-    stats.unreadable = values.iter().filter(|v| v.is_none()).count();
+    stats.gaps = gap.iter().filter(|&&g| g).count();
+    let values: Vec<Option<u8>> = (0..n)
+        .map(|k| {
+            (!gap[k])
+                .then(|| value(k, detections, &neigh[k], hg, wg, step))
+                .flatten()
+        })
+        .collect();
+    stats.unreadable = values.iter().filter(|v| v.is_none()).count() - stats.gaps;
 
     // The code: every window of the pattern by its symbols, with its centre's grid position.
     let code = CodeBook::new(&prims.value, cols, rows);
@@ -140,6 +151,11 @@ pub fn decode(
     // Each detection's own placement from its codeword.
     let mut own: Vec<Option<(usize, usize)>> = vec![None; n];
     for k in 0..n {
+        // A gap between primitives reads darker than a corner: it may take a place only from
+        // its neighbours, where the off-grid check sees it half a step off.
+        if detections[k].level < WHOLE_LEVEL {
+            continue;
+        }
         let mut word = [0u8; 9];
         let (mut unknown, mut missing) = (None, 0);
         for (c, nb) in neigh[k].iter().enumerate() {
@@ -541,21 +557,57 @@ impl SpatialIndex {
 }
 
 /// The median vectors from a detection to its nearest neighbours near the image's rows (h,
-/// pointing right) and columns (w, pointing down).
+/// pointing right) and columns (w, pointing down). The saddles in the gaps between primitives
+/// lie half a step from them, and where they are many (on the mock cell at a step of 11, a
+/// quarter of the detections) they pull the median to a fraction of the step: vectors from
+/// or to a detection that lies midway between two that read more like corners
+/// ([`Detection::level`]) are left out, and so are detections below [`WHOLE_LEVEL`] where
+/// enough are above it. At most about 2 000 detections are sampled.
 fn grid_vectors(d: &[Detection], index: &SpatialIndex) -> Option<([f64; 2], [f64; 2])> {
+    let whole = d.iter().filter(|p| p.level >= WHOLE_LEVEL).count();
+    let least = if whole >= 16 {
+        WHOLE_LEVEL
+    } else {
+        f64::NEG_INFINITY
+    };
+    // Whether `k` lies midway between detections at `k ± v` that both read brighter.
+    let between = |k: usize, v: [f64; 2]| {
+        let (p, tol) = (d[k], 0.2 * norm(v));
+        [1.0, -1.0].into_iter().all(|s| {
+            index
+                .nearest(d, p.x + s * v[0], p.y + s * v[1], tol, k)
+                .is_some_and(|m| d[m].level > p.level)
+        })
+    };
     let mut horiz = Vec::new();
     let mut vert = Vec::new();
-    for (k, p) in d.iter().enumerate() {
-        let mut near: Vec<(f64, f64, f64)> = index
-            .within(p.x, p.y, 40.0)
-            .filter(|&m| m != k)
-            .map(|m| {
-                let (dx, dy) = (d[m].x - p.x, d[m].y - p.y);
-                (dx * dx + dy * dy, dx, dy)
-            })
-            .collect();
+    let mut near: Vec<(f64, usize, [f64; 2])> = Vec::new();
+    let stride = (d.len() / 2000).max(1);
+    for (k, p) in d
+        .iter()
+        .enumerate()
+        .step_by(stride)
+        .filter(|(_, p)| p.level >= least)
+    {
+        near.clear();
+        near.extend(
+            index
+                .within(p.x, p.y, 40.0)
+                .filter(|&m| m != k && d[m].level >= least)
+                .map(|m| {
+                    let v = [d[m].x - p.x, d[m].y - p.y];
+                    (v[0] * v[0] + v[1] * v[1], m, v)
+                }),
+        );
         near.sort_by(|a, b| a.0.total_cmp(&b.0));
-        for &(_, dx, dy) in near.iter().take(4) {
+        near.truncate(4);
+        if near.iter().any(|&(_, _, v)| between(k, v)) {
+            continue;
+        }
+        for &(_, m, [dx, dy]) in &near {
+            if between(m, [dx, dy]) {
+                continue;
+            }
             let (dx, dy) = if dx.abs() >= dy.abs() {
                 if dx < 0.0 {
                     (-dx, -dy)
@@ -585,6 +637,34 @@ fn grid_vectors(d: &[Detection], index: &SpatialIndex) -> Option<([f64; 2], [f64
         Some([x, v[mid][1]])
     };
     Some((median(horiz)?, median(vert)?))
+}
+
+/// Whether detection `k` lies midway between two detections, half a grid step (along a row,
+/// a column or a diagonal) to either side, that both read more like corners than it does:
+/// where two primitives' light faces each other, the dark gap between them is a
+/// point-symmetric saddle too.
+fn between_brighter(
+    k: usize,
+    d: &[Detection],
+    index: &SpatialIndex,
+    hg: [f64; 2],
+    wg: [f64; 2],
+) -> bool {
+    let p = d[k];
+    let tol = 0.15 * norm(hg).min(norm(wg));
+    let brighter = |v: [f64; 2]| {
+        index
+            .nearest(d, p.x + v[0], p.y + v[1], tol, k)
+            .is_some_and(|m| d[m].level > p.level)
+    };
+    [
+        [0.5 * hg[0], 0.5 * hg[1]],
+        [0.5 * wg[0], 0.5 * wg[1]],
+        [0.5 * (hg[0] + wg[0]), 0.5 * (hg[1] + wg[1])],
+        [0.5 * (hg[0] - wg[0]), 0.5 * (hg[1] - wg[1])],
+    ]
+    .into_iter()
+    .any(|v| brighter(v) && brighter([-v[0], -v[1]]))
 }
 
 /// The 8 neighbours of detection `k` along the grid (window order, `k` itself in the centre):
@@ -722,6 +802,8 @@ fn norm(v: [f64; 2]) -> f64 {
 
 #[cfg(test)]
 mod tests {
+    use std::f64::consts::FRAC_PI_2;
+
     use super::*;
     use crate::single_shot::detect;
 
@@ -788,6 +870,56 @@ mod tests {
         }
         let (matches, _) = decode(&bad, &pattern, Some(&identity));
         assert_eq!(matches, clean);
+    }
+
+    /// The saddles in the gaps between primitives whose light faces each other: one midway
+    /// between every pair of grid neighbours along the rows and the columns (two for each
+    /// corner, so most of each corner's nearest detections), darker than a corner; and, where
+    /// `bright`, a quarter of them reading above [`WHOLE_LEVEL`] but below both corners.
+    fn with_gaps(found: &[Detection], step: [u32; 2], bright: bool) -> (Vec<Detection>, usize) {
+        let mut all = found.to_vec();
+        let mut added = 0;
+        for (k, a) in found.iter().enumerate() {
+            for (dx, dy) in [(f64::from(step[0]), 0.0), (0.0, f64::from(step[1]))] {
+                let Some(b) = found
+                    .iter()
+                    .find(|b| (b.x - a.x - dx).abs() < 1.0 && (b.y - a.y - dy).abs() < 1.0)
+                else {
+                    continue;
+                };
+                let level = if bright && k % 4 == 0 {
+                    a.level.min(b.level) - 0.05
+                } else {
+                    0.28
+                };
+                all.push(Detection {
+                    x: 0.5 * (a.x + b.x),
+                    y: 0.5 * (a.y + b.y),
+                    axis: if dy == 0.0 { 0.0 } else { FRAC_PI_2 },
+                    level,
+                    ..*a
+                });
+                added += 1;
+            }
+        }
+        all.sort_by(|a, b| (a.y, a.x).partial_cmp(&(b.y, b.x)).expect("finite"));
+        (all, added)
+    }
+
+    #[test]
+    fn gaps_between_primitives_neither_skew_the_grid_nor_take_places() {
+        for (seed, step) in [(1, [14, 14]), (2, [12, 16])] {
+            let (pattern, found) = seen_whole(480, 360, step, seed);
+            let identity = |x: f64, y: f64| Some((x, y));
+            let (clean, _) = decode(&found, &pattern, Some(&identity));
+            for bright in [false, true] {
+                let (all, added) = with_gaps(&found, step, bright);
+                let (matches, stats) = decode(&all, &pattern, Some(&identity));
+                assert!(added > found.len(), "seed {seed}: {added} gaps");
+                assert_eq!(stats.gaps, added, "seed {seed} bright {bright}");
+                assert_eq!(matches, clean, "seed {seed} bright {bright}");
+            }
+        }
     }
 
     /// A surface seen past an occluding edge: two columns of the pattern hidden, the next one

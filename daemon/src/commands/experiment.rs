@@ -310,7 +310,12 @@ pub fn motion(
         (mean, finite.iter().filter(|v| v.abs() <= 1.0).count())
     };
     let mut rows = Vec::new();
-    let mut detector = single_shot::Detector::default();
+    let mut detector = single_shot::Detector::new(
+        single_shot::camera_spacing(&reference, xpoint.pattern.step).map_or_else(
+            single_shot::DetectParams::default,
+            single_shot::DetectParams::for_spacing,
+        ),
+    );
     for &speed in speeds {
         let mut moving = scene.clone();
         for o in &mut moving.objects {

@@ -10,7 +10,7 @@ use ris_core::cloud::PointCloud;
 use ris_core::decode::{decode, DecodeParams};
 use ris_core::image::GrayImage;
 use ris_core::sensor::{ModelChoice, Reconstructor, Sensor};
-use ris_core::single_shot::{self, FusionRange, ReferencePrediction, XPointPattern};
+use ris_core::single_shot::{self, DetectParams, FusionRange, ReferencePrediction, XPointPattern};
 
 /// Decode `image` (the X-point pattern of `pattern` seen by `sensor`'s camera) and write the
 /// cloud to `out`; returns it. The sensor's Gray-code reference recording predicts where each
@@ -59,7 +59,8 @@ pub fn run(
             reference_dir.display()
         )
     })?;
-    if let Some(spacing) = single_shot::camera_spacing(&reference, pattern.pattern.step) {
+    let spacing = single_shot::camera_spacing(&reference, pattern.pattern.step);
+    if let Some(spacing) = spacing {
         if spacing[0].min(spacing[1]) < single_shot::MIN_CAMERA_SPACING {
             eprintln!(
                 "warning: the X-points lie {:.1} × {:.1} camera pixels apart; the detector needs {} or more, and finds few or none",
@@ -83,7 +84,9 @@ pub fn run(
     }
     let at = |x: f64, y: f64| predict.at(x, y);
     let m = single_shot::measure(
-        &mut single_shot::Detector::default(),
+        &mut single_shot::Detector::new(
+            spacing.map_or_else(DetectParams::default, DetectParams::for_spacing),
+        ),
         &img,
         &pattern,
         Some(&at),

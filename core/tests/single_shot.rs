@@ -1,7 +1,7 @@
 //! Single-shot decoding against the simulator's truth: the X-point pattern projected on seeded
 //! variations of the demo scene (boxes with steps, a sphere, a dome, a cylinder; shadows,
 //! occlusions and the pattern falling off the objects; sensor noise), at steps of 12–16
-//! projector pixels. Every decoded X-point must be the primitive that truly lights that camera
+//! projector pixels and, with the detector set for the spacing, 9–12. Every decoded X-point must be the primitive that truly lights that camera
 //! point, and nearly every primitive the camera sees whole must be decoded.
 
 use std::path::Path;

@@ -116,9 +116,10 @@ pub fn run(
         );
     }
     println!(
-        "{} points from {} X-points ({} by their codeword, {} from a neighbour; {} codewords read, {} matched; {} dropped as cut by an edge, {} refused off the grid); prepare {:.0} ms, decode + reconstruct {:.0} ms; wrote {}",
+        "{} points from {} X-points ({} gaps between primitives set aside; {} by their codeword, {} from a neighbour; {} codewords read, {} matched; {} dropped as cut by an edge, {} refused off the grid); prepare {:.0} ms, decode + reconstruct {:.0} ms; wrote {}",
         cloud.len(),
         m.detected,
+        m.stats.gaps,
         m.from_codeword,
         m.stats.propagated,
         m.stats.windows,

@@ -317,4 +317,99 @@ mod tests {
         assert!(FusionRange::new(5.0, 5.0, "t").is_err());
         assert!(FusionRange::new(f64::NAN, 5.0, "t").is_err());
     }
+
+    /// Seeded pictures, clouds and ranges: every pixel of the picture carries the colour of the
+    /// distance of the point nearest to it (within the radius), shaded by the picture, and
+    /// every other pixel the picture's own grey; the bar's ticks lie within the range, in order.
+    #[test]
+    fn each_pixel_shows_its_nearest_points_distance() {
+        let mut state = 11u64;
+        let mut rand = move || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for case in 0..5 {
+            let (w, h) = (
+                60 + (rand() * 140.0) as usize,
+                40 + (rand() * 110.0) as usize,
+            );
+            let grey: Vec<u8> = (0..w * h).map(|_| (rand() * 255.0) as u8).collect();
+            let image = GrayImage::from_u8(w as u32, h as u32, grey.clone());
+            let near = 200.0 + rand() * 2000.0;
+            let range = FusionRange::new(near, near + 50.0 + rand() * 1500.0, "t").expect("range");
+            let eye = [rand() * 100.0, rand() * 100.0, -rand() * 100.0];
+            let mut cloud = PointCloud {
+                image: Some([w as u32, h as u32]),
+                ..Default::default()
+            };
+            let mut taken = vec![false; w * h];
+            for _ in 0..(w * h) / (20 + (rand() * 80.0) as usize) {
+                let px = (rand() * (w * h) as f64) as usize;
+                if std::mem::replace(&mut taken[px], true) {
+                    continue;
+                }
+                let d = range.near - 100.0 + rand() * (range.far - range.near + 200.0);
+                let (a, b) = (rand() * 6.28, rand() * 1.5);
+                let dir = [b.sin() * a.cos(), b.sin() * a.sin(), b.cos()];
+                cloud
+                    .points
+                    .push([0, 1, 2].map(|k| (eye[k] + d * dir[k]) as f32));
+                cloud.confidence.push(1.0);
+                cloud.pixels.push(px as u32);
+            }
+            let radius = (case % 2 == 0).then(|| 1.0 + rand() * 6.0);
+            let f = fuse(&image, &cloud, eye, range, radius).expect("fused");
+            let r = f.radius;
+            let top = f64::from(*grey.iter().max().expect("pixels")).max(1.0);
+            let mut coloured = 0;
+            for y in 0..h {
+                for x in 0..w {
+                    let got = &f.rgb[(y * f.width + x) * 3..][..3];
+                    let g = f64::from(grey[y * w + x]) / top;
+                    // The points nearest to the pixel (ties all count).
+                    let d2 = |p: u32| {
+                        let (px, py) = ((p as usize % w) as f64, (p as usize / w) as f64);
+                        (px - x as f64).powi(2) + (py - y as f64).powi(2)
+                    };
+                    let least = cloud
+                        .pixels
+                        .iter()
+                        .map(|&p| d2(p))
+                        .fold(f64::INFINITY, f64::min);
+                    if least > r * r {
+                        let v = (g * 255.0) as u8;
+                        assert_eq!(got, [v, v, v], "case {case} ({x}, {y})");
+                        continue;
+                    }
+                    coloured += 1;
+                    let s = 0.45 + 0.55 * g;
+                    let fits = cloud.pixels.iter().zip(&cloud.points).any(|(&p, q)| {
+                        d2(p) == least
+                            && range
+                                .colour(distance(q, eye))
+                                .iter()
+                                .zip(got)
+                                .all(|(&c, &o)| (f64::from(c) * s - f64::from(o)).abs() <= 1.5)
+                    });
+                    assert!(fits, "case {case} ({x}, {y}): {got:?}");
+                }
+            }
+            assert_eq!(f.coloured, coloured, "case {case}");
+            let ticks: Vec<f64> = f
+                .labels
+                .iter()
+                .filter_map(|l| l.text.parse::<f64>().ok())
+                .collect();
+            assert!(ticks.len() >= 2, "case {case}: {ticks:?}");
+            assert!(
+                ticks.windows(2).all(|t| t[0] < t[1])
+                    && ticks
+                        .iter()
+                        .all(|&t| t >= range.near - 1e-6 && t <= range.far + 1e-6),
+                "case {case}: ticks {ticks:?} for {range:?}"
+            );
+        }
+    }
 }

@@ -351,7 +351,7 @@ mod tests {
                     continue;
                 }
                 let d = range.near - 100.0 + rand() * (range.far - range.near + 200.0);
-                let (a, b) = (rand() * 6.28, rand() * 1.5);
+                let (a, b) = (rand() * std::f64::consts::TAU, rand() * 1.5);
                 let dir = [b.sin() * a.cos(), b.sin() * a.sin(), b.cos()];
                 cloud
                     .points

@@ -5,7 +5,9 @@
 //! the code chosen by the predicted correspondence, and every position checked against the
 //! neighbours' (grid consistency) so that a wrong codeword cannot place a point far away.
 //! Detections at the edge of the lit region, whose window is incomplete, take their position
-//! from a decoded neighbour when their own value agrees.
+//! from a decoded neighbour when their own value agrees. The saddle in the gap between two
+//! primitives whose light faces each other is point-symmetric too: it is told apart by its
+//! darker centre and its place midway between two corners, and takes no place.
 
 use super::code::PERIOD;
 use super::detect::{Detection, WHOLE_LEVEL};

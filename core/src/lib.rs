@@ -26,4 +26,9 @@ pub mod sim;
 pub mod single_shot;
 pub mod spatial;
 
+/// The seeded generator the integration tests use, for the unit tests' families of cases.
+#[cfg(test)]
+#[path = "../tests/common/mod.rs"]
+mod testing;
+
 pub use error::{Error, Result};

@@ -292,6 +292,7 @@ pub fn fit_unit(nominal: &MirrorUnit, obs: &[([f64; 2], Vec3)]) -> (MirrorUnit, 
 mod tests {
     use super::*;
     use crate::omni::OmniSensor;
+    use crate::testing::Rng;
 
     /// The largest angle between the two units' rays over a 16 px grid of a 640×480 image,
     /// degrees.
@@ -312,22 +313,9 @@ mod tests {
         worst
     }
 
-    /// A small linear-congruential generator for the seeded cases: uniform in [lo, hi).
-    struct Lcg(u64);
-
-    impl Lcg {
-        fn range(&mut self, lo: f64, hi: f64) -> f64 {
-            self.0 = self
-                .0
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            lo + (hi - lo) * ((self.0 >> 11) as f64 / (1u64 << 53) as f64)
-        }
-    }
-
     /// Points on two cylinders about the sensor (radius, half height, mm), seen through
     /// `truth` with uniform noise of ±0.175 px.
-    fn observe(truth: &MirrorUnit, rng: &mut Lcg) -> Vec<([f64; 2], Vec3)> {
+    fn observe(truth: &MirrorUnit, rng: &mut Rng) -> Vec<([f64; 2], Vec3)> {
         let mut obs = Vec::new();
         for (radius, half) in [(900.0, 1400.0), (3500.0, 2200.0)] {
             for i in 0..90 {
@@ -362,7 +350,7 @@ mod tests {
         let nominal = OmniSensor::load(&seed).expect("seed").camera;
         let scale = [0.005, 0.005, 0.012, 0.8, 0.8, 1.0, 3.5, 3.0, 2.0, 3.0, 0.3];
         for case in 0..4u64 {
-            let mut rng = Lcg(7 + 1000 * case);
+            let mut rng = Rng(7 + 1000 * case);
             let p: Vec<f64> = scale
                 .iter()
                 .map(|&s| {

@@ -34,7 +34,7 @@ pub struct Detection {
 }
 
 /// Least [`Detection::level`] of a corner where four edges cross, on the frames measured. On
-/// the mock cell at steps of 11–12 projector pixels, decoded corners read 0.45–0.65 (1st to
+/// the mock cell at a step of 12 projector pixels, decoded corners read 0.45–0.65 (1st to
 /// 99th percentile) and the gaps between primitives 0.25–0.31 (up to the 95th); strong surface
 /// texture takes some corners below it, so detection keeps down to 0.25; the decoder reads the
 /// grid from the detections above it, and places those below only from their neighbours.

@@ -323,13 +323,8 @@ mod tests {
     /// every other pixel the picture's own grey; the bar's ticks lie within the range, in order.
     #[test]
     fn each_pixel_shows_its_nearest_points_distance() {
-        let mut state = 11u64;
-        let mut rand = move || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = crate::testing::Rng(11);
+        let mut rand = move || rng.uniform();
         for case in 0..5 {
             let (w, h) = (
                 60 + (rand() * 140.0) as usize,

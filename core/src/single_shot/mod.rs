@@ -8,7 +8,9 @@ mod fusion;
 mod pattern;
 mod reconstruct;
 
-pub use decode::{decode, Correspondence, DecodeStats, Predict, CUT_ELONGATION, OFF_GRID};
+pub use decode::{
+    decode, Correspondence, DecodeStats, Predict, CUT_ASYMMETRY, CUT_ELONGATION, OFF_GRID,
+};
 pub use detect::{detect, DetectParams, Detection, Detector, DISC_MARGIN, WHOLE_LEVEL};
 pub use fusion::{fuse, fuse_from, Fused, FusionRange};
 pub use pattern::{PatternSection, Primitives, XPointPattern, MIN_STEP};

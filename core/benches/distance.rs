@@ -5,6 +5,10 @@
 use criterion::{criterion_group, criterion_main, Criterion};
 use ris_core::mesh::{SignedDistance, TriangleMesh};
 
+#[path = "../tests/common/mod.rs"]
+mod common;
+use common::Rng;
+
 /// A curved panel of (n+1)² vertices and 2n² triangles over 1000 × 800 mm.
 fn panel(n: usize) -> TriangleMesh {
     TriangleMesh::height_field(n, n, (-500.0, 500.0), (-400.0, 400.0), |x, y| {
@@ -15,13 +19,8 @@ fn panel(n: usize) -> TriangleMesh {
 fn bench(c: &mut Criterion) {
     let mesh = panel(491);
     assert_eq!(mesh.triangles.len(), 482_162);
-    let mut s = 9u64;
-    let mut u = move || {
-        s = s
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (s >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut rng = Rng(9u64);
+    let mut u = move || rng.uniform();
     let points: Vec<[f64; 3]> = (0..200_000)
         .map(|_| {
             let (x, y) = (-480.0 + 960.0 * u(), -380.0 + 760.0 * u());

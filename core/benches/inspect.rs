@@ -12,6 +12,10 @@ use ris_core::inspect::{inspect, InspectParams};
 use ris_core::mesh::{SignedDistance, TriangleMesh};
 use ris_core::register::Pose;
 
+#[path = "../tests/common/mod.rs"]
+mod common;
+use common::Rng;
+
 /// `n` points in rows on the mock cell's panel (z = −(x²/5000 + y²/8000)) over the CAD's extent, with
 /// 0.05 mm of noise, moved off the nominal pose by 0.3 mm and 0.02°.
 fn panel_cloud(mesh: &TriangleMesh, n: usize) -> Vec<[f64; 3]> {
@@ -22,13 +26,8 @@ fn panel_cloud(mesh: &TriangleMesh, n: usize) -> Vec<[f64; 3]> {
             hi[k] = hi[k].max(v[k]);
         }
     }
-    let mut s = 11u64;
-    let mut u = move || {
-        s = s
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (s >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut rng = Rng(11u64);
+    let mut u = move || rng.uniform();
     let off = Pose::from_parts(
         Vector3::new(0.3, -0.2, 0.1).into(),
         UnitQuaternion::from_scaled_axis(Vector3::new(0.0002, -0.0003, 0.0001)),

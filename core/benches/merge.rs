@@ -6,16 +6,15 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use ris_core::cloud::{Merger, PointCloud};
 use ris_core::geometry::Matrix4;
 
+#[path = "../tests/common/mod.rs"]
+mod common;
+use common::Rng;
+
 /// One sensor's quarter: a 1600 × 1000 grid over [x0, x0 + 640) × [y0, y0 + 400) mm in the
 /// cell frame, stored in a sensor frame shifted by `shift` (mm) and jittered a little.
 fn quarter(x0: f64, y0: f64, shift: [f64; 3], seed: u64) -> (PointCloud, Matrix4<f64>) {
-    let mut s = seed;
-    let mut u = move || {
-        s = s
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (s >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut rng = Rng(seed);
+    let mut u = move || rng.uniform();
     let mut c = PointCloud::default();
     for j in 0..1000 {
         for i in 0..1600 {

@@ -5,14 +5,13 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use nalgebra::{Point3, Vector3};
 use ris_core::register::{Icp, IcpMetric, IcpParams, Pose};
 
+#[path = "../tests/common/mod.rs"]
+mod common;
+use common::Rng;
+
 fn panel(n: usize, x0: f64, x1: f64, seed: u64) -> Vec<[f64; 3]> {
-    let mut s = seed;
-    let mut u = move || {
-        s = s
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((s >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    };
+    let mut rng = Rng(seed);
+    let mut u = move || rng.uniform();
     (0..n)
         .map(|_| {
             let (x, y) = (x0 + (x1 - x0) * u(), -200.0 + 400.0 * u());

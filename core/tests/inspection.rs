@@ -5,6 +5,9 @@ use ris_core::inspect::{inspect, Datum, InspectParams};
 use ris_core::mesh::{stl, SignedDistance, TriangleMesh};
 use ris_core::register::Pose;
 
+mod common;
+use common::Rng;
+
 fn surface(x: f64, y: f64) -> f64 {
     35.0 * (x / 160.0).sin() * (y / 140.0).cos() + 0.0006 * x * x
 }
@@ -32,22 +35,16 @@ fn planted(x: f64, y: f64) -> f64 {
 
 /// Measured cloud in its own (unknown) frame, with the planted deviation of each point.
 fn measure(deformed: bool) -> (Vec<[f64; 3]>, Vec<f64>, Pose) {
-    let mut s = 11u64;
-    let mut u = move || {
-        s = s
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((s >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    };
+    let mut rng = Rng(11);
     let sensor_from_cad = Pose::new(
         Vector3::new(300.0, -150.0, 80.0),
         Vector3::new(0.2, -0.3, 0.35),
     );
     let (mut pts, mut truth) = (Vec::new(), Vec::new());
     for _ in 0..80_000 {
-        let (x, y) = (-195.0 + 390.0 * u(), -145.0 + 290.0 * u());
+        let (x, y) = (rng.range(-195.0, 195.0), rng.range(-145.0, 145.0));
         let d = if deformed { planted(x, y) } else { 0.0 };
-        let noise = 0.03 * (-2.0 * u().ln()).sqrt() * (std::f64::consts::TAU * u()).cos();
+        let noise = 0.03 * rng.gauss();
         let p = Vec3::new(x, y, surface(x, y)) + normal(x, y) * (d + noise);
         pts.push((sensor_from_cad * Point3::from(p)).coords.into());
         truth.push(d);

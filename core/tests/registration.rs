@@ -3,6 +3,9 @@
 use nalgebra::{Point3, Vector3};
 use ris_core::register::{rotation_angle_deg, Icp, IcpMetric, IcpParams, Pose};
 
+mod common;
+use common::Rng;
+
 /// A smooth, asymmetric panel so every degree of freedom is constrained.
 fn surface(x: f64, y: f64) -> f64 {
     25.0 * (x / 70.0).sin() * (y / 55.0).cos() + 0.0004 * x * x - 0.0002 * x * y
@@ -11,18 +14,11 @@ fn surface(x: f64, y: f64) -> f64 {
 
 /// Random samples of the panel over [x0, x1] × [y0, y1] with Gaussian noise along z.
 fn sample(n: usize, x0: f64, x1: f64, y0: f64, y1: f64, noise: f64, seed: u64) -> Vec<[f64; 3]> {
-    let mut s = seed;
-    let mut uniform = move || {
-        s = s
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((s >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    };
+    let mut rng = Rng(seed);
     (0..n)
         .map(|_| {
-            let (x, y) = (x0 + (x1 - x0) * uniform(), y0 + (y1 - y0) * uniform());
-            let g = (-2.0 * uniform().ln()).sqrt() * (std::f64::consts::TAU * uniform()).cos();
-            [x, y, surface(x, y) + noise * g]
+            let (x, y) = (rng.range(x0, x1), rng.range(y0, y1));
+            [x, y, surface(x, y) + noise * rng.gauss()]
         })
         .collect()
 }
@@ -80,18 +76,8 @@ fn point_to_point_recovers_a_reposed_part_of_the_same_scan() {
         Vector3::new(4.0, -3.0, 1.5),
         Vector3::new(0.01, -0.02, 0.04),
     );
-    let mut s = 7u64;
-    let mut noise = move || {
-        s = s
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        let u = ((s >> 11) as f64 + 0.5) / (1u64 << 53) as f64;
-        s = s
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        let v = ((s >> 11) as f64 + 0.5) / (1u64 << 53) as f64;
-        0.03 * (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
-    };
+    let mut rng = Rng(7);
+    let mut noise = move || 0.03 * rng.gauss();
     let moving: Vec<[f64; 3]> = fixed
         .iter()
         .filter(|p| p[0] > -40.0)

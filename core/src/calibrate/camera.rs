@@ -445,13 +445,8 @@ mod tests {
     /// Synthetic views of a 9x6 board seen by a known camera, with corner noise.
     fn views(k: &[f64; 9], noise: f64, poses: &[([f64; 3], [f64; 3])]) -> Vec<BoardView> {
         let board = BoardSize { cols: 9, rows: 6 };
-        let mut seed = 7u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((seed >> 11) as f64 / (1u64 << 53) as f64) - 0.5
-        };
+        let mut rng = crate::testing::Rng(7);
+        let mut rnd = || rng.range(-0.5, 0.5);
         poses
             .iter()
             .enumerate()

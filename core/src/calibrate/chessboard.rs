@@ -918,14 +918,9 @@ mod tests {
 
     #[test]
     fn no_board_in_noise() {
-        let mut rng = 12345u64;
+        let mut rng = crate::testing::Rng(12345);
         let img: Vec<f32> = (0..200 * 150)
-            .map(|_| {
-                rng = rng
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                ((rng >> 33) % 40) as f32 + 100.0
-            })
+            .map(|_| rng.range(100.0, 140.0).floor() as f32)
             .collect();
         let board = BoardSize { cols: 9, rows: 6 };
         assert!(detect(&img, 200, 150, board, &DetectParams::default()).is_err());

@@ -1265,14 +1265,13 @@ mod tests {
             t,
         };
         let mut obs = Vec::new();
-        let mut seed = 3u64;
+        let mut rng = crate::testing::Rng(3);
         for h in [0.0, 40.0, 80.0, 120.0, 160.0] {
             for j in 0..9 {
                 for i in 0..13 {
                     let p = Vec3::new((i as f64 - 6.0) * 40.0, (4.0 - j as f64) * 40.0, h);
                     let (u, v) = truth.project(&p).expect("visible");
-                    seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1);
-                    let n = ((seed >> 40) as f64 / (1u64 << 24) as f64 - 0.5) * 0.1;
+                    let n = rng.range(-0.05, 0.05);
                     obs.push((p, [u + n, v - n]));
                 }
             }

@@ -571,13 +571,8 @@ mod tests {
         density: f64,
         keep: impl Fn(f64, f64) -> bool,
     ) -> Vec<Vector3<f64>> {
-        let mut s = seed;
-        let mut uni = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = crate::testing::Rng(seed);
+        let mut uni = || rng.uniform();
         let n = (density * 4.0 * r * r) as usize;
         (0..n)
             .filter_map(|_| {

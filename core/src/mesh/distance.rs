@@ -314,13 +314,8 @@ mod tests {
     fn signed_distances_match_brute_force_and_the_sign_convention() {
         let mesh = sphere(50.0, 12);
         let sd = SignedDistance::new(mesh.clone());
-        let mut s = 3u64;
-        let mut u = move || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut rng = crate::testing::Rng(3);
+        let mut u = move || rng.range(-1.0, 1.0);
         let n = mesh.triangles.len() as f64;
         for _ in 0..500 {
             let p = Vec3::new(u(), u(), u()) * 80.0;

@@ -1275,13 +1275,8 @@ mod tests {
     /// The seed's sensor as built, not as drawn: each unit's mirror shifted and tilted, its
     /// lens' focal lengths and principal point off, its mirror's `a` off.
     fn as_built(nominal: &OmniFile, k: u64) -> OmniFile {
-        let mut s = 0x9e37_79b9_7f4a_7c15u64.wrapping_mul(k + 1);
-        let mut next = move |scale: f64| {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0) * scale
-        };
+        let mut rng = crate::testing::Rng(0x9e37_79b9_7f4a_7c15u64.wrapping_mul(k + 1));
+        let mut next = move |scale: f64| rng.range(-scale, scale);
         let mut f = nominal.clone();
         for unit in [&mut f.camera, &mut f.projector] {
             for t in unit.mirror.t.iter_mut() {

@@ -1039,13 +1039,8 @@ mod tests {
 
     /// A room of seeded size and placement around the sensor, with a box and a cylinder.
     fn room(seed: u64) -> Room {
-        let mut x = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
-        let mut r = move || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = crate::testing::Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+        let mut r = move || rng.uniform();
         let (hx, hy) = (2200.0 + 1200.0 * r(), 2000.0 + 1000.0 * r());
         let centre = [400.0 * (r() - 0.5), 400.0 * (r() - 0.5)];
         let a = std::f64::consts::TAU * r();

@@ -229,13 +229,8 @@ mod tests {
     }
 
     fn room_points() -> Vec<Vec3> {
-        let mut s = 17u64;
-        let mut u = move || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = crate::testing::Rng(17);
+        let mut u = move || rng.uniform();
         (0..400)
             .map(|_| {
                 let (az, range) = (u() * std::f64::consts::TAU, 2000.0 + 2000.0 * u());

@@ -1021,12 +1021,9 @@ mod tests {
 
     #[test]
     fn a_surface_past_an_occluding_edge_is_not_placed_in_the_hidden_column() {
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut rng = crate::testing::Rng(0x9e37_79b9_7f4a_7c15);
         for seed in 1..=4 {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1);
-            let f = 0.24 + 0.1 * (state >> 11) as f64 / (1u64 << 53) as f64;
+            let f = rng.range(0.24, 0.34);
             let placed = across_an_edge(seed, f);
             let c0 = XPointPattern::generate(480, 360, [14, 14], 3, seed)
                 .expect("pattern")

@@ -178,13 +178,8 @@ mod tests {
     use super::*;
 
     fn cloud(n: usize, seed: u64) -> Vec<[f64; 3]> {
-        let mut s = seed;
-        let mut r = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64 * 100.0
-        };
+        let mut rng = crate::testing::Rng(seed);
+        let mut r = || rng.range(0.0, 100.0);
         (0..n).map(|_| [r(), r(), r() * 0.1]).collect()
     }
 

@@ -305,25 +305,36 @@ fn once_scans_the_builtin_mock_cell() {
 /// spacing and the least step that works (a step of 8 gives X-points 7.8 camera pixels apart on
 /// the mock cell, and the detector finds a quarter of them); a single-shot scan then fails
 /// naming it. A step of 9 (8.7 px), which the detector set for the spacing resolves, scans whole.
+/// One single-shot scan of `config`'s pairs into `data` (inspecting `part` when given).
+fn single_shot_scan(
+    config: &CellConfig,
+    part: Option<&ris_daemon::scan::Part>,
+    data: &Path,
+    id: &str,
+) -> anyhow::Result<(ris_daemon::scan::ScanReport, std::path::PathBuf)> {
+    let mut pairs = ris_daemon::pair::open_all(config, 5).expect("pairs");
+    ris_daemon::scan::run(
+        "mock",
+        &mut pairs,
+        ScanOptions {
+            mode: ris_daemon::scan::ScanMode::SingleShot,
+            part,
+            ..ScanOptions::default()
+        },
+        data,
+        id,
+        &|| false,
+        &|_| {},
+    )
+}
+
 #[test]
 fn a_pattern_finer_than_the_camera_resolves_is_refused_with_the_step_that_works() {
     let mut config = CellConfig::load(&config_dir().join("mock-cell.toml")).expect("config");
     config.sensors.retain(|s| s.name == "s1");
     let scan = |config: &CellConfig| {
-        let mut pairs = ris_daemon::pair::open_all(config, 5).expect("pairs");
         let data = tempfile::tempdir().expect("tmp");
-        ris_daemon::scan::run(
-            "mock",
-            &mut pairs,
-            ScanOptions {
-                mode: ris_daemon::scan::ScanMode::SingleShot,
-                ..ScanOptions::default()
-            },
-            data.path(),
-            "a",
-            &|| false,
-            &|_| {},
-        )
+        single_shot_scan(config, None, data.path(), "a")
     };
     config.single_shot.step = [8, 8];
     let msg = format!("{:#}", scan(&config).expect_err("refused"));
@@ -351,22 +362,9 @@ fn a_scan_with_nothing_to_inspect_fails_naming_the_blind_sensors() {
         s.exposure_us = 1.0;
     }
     let part = Part::prepare(&config.parts[0]).expect("part");
-    let mut pairs = ris_daemon::pair::open_all(&config, 5).expect("pairs");
     let data = tempfile::tempdir().expect("tmp");
-    let err = ris_daemon::scan::run(
-        "mock",
-        &mut pairs,
-        ScanOptions {
-            mode: ris_daemon::scan::ScanMode::SingleShot,
-            part: Some(&part),
-            ..ScanOptions::default()
-        },
-        data.path(),
-        "blind",
-        &|| false,
-        &|_| {},
-    )
-    .expect_err("nothing to inspect");
+    let err = single_shot_scan(&config, Some(&part), data.path(), "blind")
+        .expect_err("nothing to inspect");
     let msg = format!("{err:#}");
     for s in ["s1", "s2"] {
         assert!(
@@ -386,21 +384,8 @@ fn a_scan_with_nothing_to_inspect_fails_naming_the_blind_sensors() {
 
     // One lens uncovered: the scan inspects what s1 measured, and its report names s2 alone.
     config.sensors[0].exposure_us = 10_000.0;
-    let mut pairs = ris_daemon::pair::open_all(&config, 5).expect("pairs");
-    let (report, dir) = ris_daemon::scan::run(
-        "mock",
-        &mut pairs,
-        ScanOptions {
-            mode: ris_daemon::scan::ScanMode::SingleShot,
-            part: Some(&part),
-            ..ScanOptions::default()
-        },
-        data.path(),
-        "half",
-        &|| false,
-        &|_| {},
-    )
-    .expect("s1 measures");
+    let (report, dir) =
+        single_shot_scan(&config, Some(&part), data.path(), "half").expect("s1 measures");
     assert!(report.sensors[0].points > 1000, "{:?}", report.sensors[0]);
     assert_eq!(report.sensors[1].points, 0);
     let named = |w: &[String], s: &str| w.iter().any(|w| w.starts_with(&format!("sensor {s} ")));

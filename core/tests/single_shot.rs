@@ -11,7 +11,8 @@ use ris_core::pattern::{Pattern, ProjectionMask};
 use ris_core::sensor::Reconstructor;
 use ris_core::sim::{Scene, SceneFile, Simulator};
 use ris_core::single_shot::{
-    camera_spacing, decode, detect, reconstruct, DetectParams, ReferencePrediction, XPointPattern,
+    camera_spacing, decode_frame, reconstruct, DetectParams, Detector, ReferencePrediction,
+    XPointPattern,
 };
 
 mod common;
@@ -103,7 +104,6 @@ fn run(file: SceneFile, step: [u32; 2], seed: u64) -> Outcome {
     };
     let img = sim.frame_with(&sim.layout(), Pattern::White, Some(&mask), 1.0, seed);
     let (w, h) = (img.width as usize, img.height as usize);
-    let levels = img.to_levels();
     // The Gray-code reference (the bare plane, decoded) predicts each camera point's projector
     // position and gives the parallax model, as a sensor file's [reference] does; the detector
     // is set for the X-points' spacing in the camera, as risd sets it.
@@ -119,10 +119,10 @@ fn run(file: SceneFile, step: [u32; 2], seed: u64) -> Outcome {
         "spacing {spacing:.1?} px: radius {:.2} sigma {:.2}",
         params.radius, params.sigma
     );
-    let found = detect(&levels, w, h, &params);
     let reference = ReferencePrediction::new(&dec_ref).expect("row codes");
     let predict = |x: f64, y: f64| reference.at(x, y);
-    let (matches, stats) = decode(&found, &pattern, Some(&predict));
+    let (found, matches, stats) =
+        decode_frame(&mut Detector::new(params), &img, &pattern, Some(&predict));
     let rec = Reconstructor::parallax(&scene.camera, scene.projector.center(), &dec_ref)
         .expect("parallax model");
     let cloud = reconstruct(&matches, &rec);
@@ -561,8 +561,8 @@ fn decode_independent(pattern: &XPointPattern, dir: &Path) -> Outcome {
     let (w, h) = (image.width as usize, image.height as usize);
     let params = camera_spacing(&reference, pattern.pattern.step)
         .map_or_else(DetectParams::default, DetectParams::for_spacing);
-    let found = detect(&image.to_levels(), w, h, &params);
-    let (matches, stats) = decode(&found, pattern, Some(&at));
+    let (found, matches, stats) =
+        decode_frame(&mut Detector::new(params), &image, pattern, Some(&at));
     let cloud = reconstruct(&matches, &rec);
 
     let (shape, xyz) = npy::read::<f32>(&out.join("xyz.npy")).expect("xyz.npy");
@@ -606,17 +606,19 @@ fn independent_renders_decode_to_the_surface() {
         // Corners cut by the end of a surface (the table's edge, a shadow) keep a centre of
         // symmetry off their corner. Those cut along their axis are dropped as cut (their light
         // is narrower than their neighbours'), as are those cut across a lobe when they are
-        // clearly more asymmetric than their neighbours; the rest carry the boundary flag
-        // (halved confidence). Points at full confidence beyond 2 mm stay within the issue's
-        // 0.1 %; all of them within 0.6 % (1.0–1.1 % before the cut tests, where a table edge
-        // runs along a column of primitives).
+        // clearly more asymmetric than their neighbours; those the symmetric fit placed inside
+        // the line of their neighbours are moved to where the whole half of a neighbour's light
+        // matches; the rest carry the boundary flag (halved confidence). Points at full
+        // confidence beyond 2 mm stay within the issue's 0.1 %; all of them within 0.4 %
+        // (1.0–1.1 % before the cut tests, where a table edge runs along a column of
+        // primitives; 0.21 and 0.14 % on scenes 1 and 2 when this was written).
         let unflagged = o.far - o.far_flagged;
         assert!(
             unflagged as f64 <= 0.001 * o.measured as f64 + 1.0,
             "scene {case}: {unflagged} of {} unflagged beyond 2 mm",
             o.measured
         );
-        o.assert_decoding(&format!("scene {case}"), rate, 0.006);
+        o.assert_decoding(&format!("scene {case}"), rate, 0.004);
     }
 }
 
@@ -661,10 +663,11 @@ fn independent_family(textures: &[(f64, f64)]) -> Vec<(usize, Outcome)> {
 
 /// The acceptance pooled over twelve independent scenes (the three above and nine more with
 /// mild texture): every mild one decodes ≥ 95 % of the primitives in view with a mean error
-/// ≤ 0.3 mm; of all their points at most 0.2 % lie beyond 2 mm (0.16 % when this was written;
-/// the issue asks 0.1 %: corners cut by an edge across one lobe, at table ends and shadows,
-/// are most of them), and at most 0.1 % are placed at a wrong primitive (7 of 25 900, 3 of
-/// them in one scene). About two minutes on two cores:
+/// ≤ 0.3 mm; of all their points at most 0.15 % lie beyond 2 mm (33 of 25 887, 0.13 %, when
+/// this was written, 42 before cut corners were moved back; the issue asks 0.1 %: corners cut
+/// by an edge, at table ends and shadows, are most of the rest, with 6 placed a whole step
+/// off), and at most 0.1 % are placed at a wrong primitive (7 of 25 956, 3 of them in one
+/// scene). About two minutes on two cores:
 /// `cargo test --profile ci -p ris-core --test single_shot -- --ignored --nocapture`
 #[test]
 #[ignore = "a survey of twelve scenes, about two minutes on two cores"]
@@ -692,7 +695,7 @@ fn independent_renders_pooled_over_twelve_scenes() {
         100.0 * far as f64 / measured as f64
     );
     assert!(
-        far as f64 <= 0.002 * measured as f64,
+        far as f64 <= 0.0015 * measured as f64,
         "{far} of {measured} beyond 2 mm"
     );
     assert!(

@@ -56,6 +56,9 @@ pub struct DecodeStats {
     /// Placements dropped at a boundary as cut by it (see [`CUT_ELONGATION`] and
     /// [`CUT_ASYMMETRY`]).
     pub cut: usize,
+    /// Corners beside a missing neighbour moved to where the half of their light away from
+    /// the edge places them (see [`super::Detector::recentre_cut`]).
+    pub recentred: usize,
     /// Detections midway between two that read more like corners: the saddle in the gap
     /// between two primitives whose light faces each other (see [`Detection::level`]).
     pub gaps: usize,

@@ -119,6 +119,8 @@ pub struct Detector {
     tmp: Vec<f32>,
     strength: Vec<f32>,
     log: Vec<f32>,
+    width: usize,
+    height: usize,
 }
 
 impl Detector {
@@ -128,6 +130,16 @@ impl Detector {
             params,
             ..Default::default()
         }
+    }
+
+    /// Its settings.
+    pub fn params(&self) -> &DetectParams {
+        &self.params
+    }
+
+    /// The last frame's smoothed grey levels, with its width and height.
+    pub(super) fn smoothed(&self) -> (&[f32], usize, usize) {
+        (&self.smooth, self.width, self.height)
     }
 
     /// The X-points of `image`.
@@ -142,8 +154,10 @@ impl Detector {
     /// The X-points of a `width × height` image of grey levels.
     pub fn detect(&mut self, levels: &[f32], width: usize, height: usize) -> Vec<Detection> {
         if width < 8 || height < 8 || levels.len() != width * height {
+            (self.width, self.height) = (0, 0);
             return Vec::new();
         }
+        (self.width, self.height) = (width, height);
         let p = &self.params;
         gaussian_blur_into(
             levels,
@@ -442,7 +456,7 @@ fn sample(s: &[f32], width: usize, height: usize, x: f64, y: f64) -> Option<f64>
 
 /// Bilinear samples of an image at whole-pixel offsets from one sub-pixel point: they all
 /// share its fractional part, so the weights are computed, and the bounds checked, once.
-struct Shifted<'a> {
+pub(super) struct Shifted<'a> {
     s: &'a [f32],
     width: isize,
     base: isize,
@@ -452,7 +466,14 @@ struct Shifted<'a> {
 
 impl<'a> Shifted<'a> {
     /// Samples about (x, y) up to `reach` pixels away; `None` where they would leave the image.
-    fn new(s: &'a [f32], width: usize, height: usize, x: f64, y: f64, reach: i32) -> Option<Self> {
+    pub(super) fn new(
+        s: &'a [f32],
+        width: usize,
+        height: usize,
+        x: f64,
+        y: f64,
+        reach: i32,
+    ) -> Option<Self> {
         let r = f64::from(reach);
         if !(x - r >= 0.0
             && y - r >= 0.0
@@ -486,7 +507,7 @@ impl<'a> Shifted<'a> {
 
     /// The value at offset (dx, dy).
     #[inline]
-    fn value(&self, dx: i32, dy: i32) -> f64 {
+    pub(super) fn value(&self, dx: i32, dy: i32) -> f64 {
         let (a, b, c, d) = self.corners(dx, dy);
         let top = a + (b - a) * self.ax;
         top + (c + (d - c) * self.ax - top) * self.ay

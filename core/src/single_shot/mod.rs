@@ -2,12 +2,14 @@
 //! pattern, gives a cloud, so moving parts and a robot's surroundings can be measured.
 
 pub mod code;
+mod cut;
 mod decode;
 mod detect;
 mod fusion;
 mod pattern;
 mod reconstruct;
 
+pub use cut::{CUT_INSIDE, CUT_INSIDE_MAX, CUT_SHIFT};
 pub use decode::{
     decode, Correspondence, DecodeStats, Predict, CUT_ASYMMETRY, CUT_ELONGATION, OFF_GRID,
 };
@@ -15,5 +17,6 @@ pub use detect::{detect, DetectParams, Detection, Detector, DISC_MARGIN, WHOLE_L
 pub use fusion::{fuse, fuse_from, Fused, FusionRange};
 pub use pattern::{PatternSection, Primitives, XPointPattern, MIN_STEP};
 pub use reconstruct::{
-    camera_spacing, measure, reconstruct, Measured, ReferencePrediction, MIN_CAMERA_SPACING,
+    camera_spacing, decode_frame, measure, reconstruct, Measured, ReferencePrediction,
+    MIN_CAMERA_SPACING,
 };

@@ -164,6 +164,25 @@ pub struct Measured {
     pub reconstruct_s: f64,
 }
 
+/// The X-points of one camera `image` of `pattern` (found by `detector`, which keeps its working
+/// images for the next frame), and those decoded (the repeat chosen by `predict`), with the
+/// corners an edge cut moved to where the half it did not reach places them.
+pub fn decode_frame(
+    detector: &mut super::Detector,
+    image: &crate::image::GrayImage,
+    pattern: &super::XPointPattern,
+    predict: Option<super::Predict>,
+) -> (
+    Vec<super::Detection>,
+    Vec<super::Correspondence>,
+    super::DecodeStats,
+) {
+    let found = detector.detect_image(image);
+    let (mut matches, mut stats) = super::decode(&found, pattern, predict);
+    stats.recentred = detector.recentre_cut(&mut matches, pattern);
+    (found, matches, stats)
+}
+
 /// Detect (with `detector`, which keeps its working images for the next frame), decode (the
 /// repeat chosen by `predict`) and reconstruct one camera `image` of `pattern` through `rec`.
 pub fn measure(
@@ -174,8 +193,7 @@ pub fn measure(
     rec: &Reconstructor,
 ) -> Measured {
     let t = std::time::Instant::now();
-    let found = detector.detect_image(image);
-    let (matches, stats) = super::decode(&found, pattern, predict);
+    let (found, matches, stats) = decode_frame(detector, image, pattern, predict);
     let decode_s = t.elapsed().as_secs_f64();
     let cloud = reconstruct(&matches, rec);
     Measured {

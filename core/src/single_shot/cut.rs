@@ -30,7 +30,8 @@ pub const CUT_SHIFT: f64 = 0.4;
 /// The grid offsets of the four sides in `Correspondence::sides` bit order.
 const SIDES: [(i64, i64); 4] = [(-1, 0), (1, 0), (0, -1), (0, 1)];
 
-/// Most samples in half of the matching disc (a disc of radius 8 holds 197 points).
+/// Most samples in half of the matching disc (a disc of radius 8 holds 197 points); a detector
+/// set for a larger disc moves no corner rather than match a truncated half.
 const MAX_SAMPLES: usize = 128;
 
 impl Detector {
@@ -121,7 +122,7 @@ impl Detector {
                 }
             }
         }
-        let found: Vec<(usize, f64, (f64, f64))> = sought
+        let mut found: Vec<(usize, f64, (f64, f64))> = sought
             .par_iter()
             .filter_map(|&(k, n, whole)| {
                 let m = &matches[k];
@@ -131,18 +132,13 @@ impl Detector {
             })
             .collect();
         // Where two sides were cut, the match that moves the corner furthest.
-        let mut moves: Vec<(usize, f64, f64)> = Vec::new();
-        for &(k, shift, (ox, oy)) in &found {
-            let further = found.iter().any(|&(o, other, _)| o == k && other > shift);
-            if !further && !moves.iter().any(|m| m.0 == k) {
-                moves.push((k, ox, oy));
-            }
-        }
-        for &(k, ox, oy) in &moves {
+        found.sort_by(|a, b| a.0.cmp(&b.0).then(b.1.total_cmp(&a.1)));
+        found.dedup_by_key(|f| f.0);
+        for &(k, _, (ox, oy)) in &found {
             matches[k].x += ox;
             matches[k].y += oy;
         }
-        moves.len()
+        found.len()
     }
 }
 
@@ -170,10 +166,10 @@ fn half_match(
     for dy in -r..=r {
         for dx in -r..=r {
             let (fx, fy) = (f64::from(dx), f64::from(dy));
-            if fx * fx + fy * fy <= radius * radius
-                && fx * n.0 + fy * n.1 < -0.5
-                && len < MAX_SAMPLES
-            {
+            if fx * fx + fy * fy <= radius * radius && fx * n.0 + fy * n.1 < -0.5 {
+                if len == MAX_SAMPLES {
+                    return None;
+                }
                 offsets[len] = (dx, dy);
                 template[len] = source.value(dx, dy);
                 len += 1;
@@ -238,7 +234,7 @@ fn half_match(
 mod tests {
     use super::*;
     use crate::image::gaussian_blur_into;
-    use crate::single_shot::decode;
+    use crate::single_shot::{decode, DetectParams};
     use crate::testing::Rng;
 
     /// Seeded patterns seen head-on with an edge a little right of one column of corners,
@@ -246,7 +242,8 @@ mod tests {
     /// column the symmetric fit placed more than half a pixel inside are moved to within a
     /// quarter pixel of their primitives (18 of 21 when this was written; the others lack a
     /// second neighbour on the whole side or a template), none of that column ends further
-    /// off, and no corner off it moves.
+    /// off, no corner off it moves, and a detector whose disc is too large for the template
+    /// moves none.
     #[test]
     fn corners_an_edge_cut_are_moved_back_to_their_primitives() {
         let mut rng = Rng(5);
@@ -281,6 +278,16 @@ mod tests {
             let (before, _) = decode(&found, &pattern, Some(&identity));
             let mut after = before.clone();
             let moved = detector.recentre_cut(&mut after, &pattern);
+            // A disc too large for the template's samples moves nothing rather than match a
+            // truncated half.
+            let mut wide = Detector::new(DetectParams {
+                radius: 9.5,
+                ..Default::default()
+            });
+            wide.detect(&levels, w, h);
+            let mut unmoved = before.clone();
+            assert_eq!(wide.recentre_cut(&mut unmoved, &pattern), 0);
+            assert_eq!(unmoved, before);
             let off = |m: &Correspondence| (m.x - m.u).hypot(m.y - m.v);
             for (b, a) in before.iter().zip(&after) {
                 if (b.u - column).abs() < 0.5 {

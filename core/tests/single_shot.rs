@@ -597,7 +597,9 @@ fn independent_renders_decode_to_the_surface() {
         ((0.2, 0.3), 0.45, 0.94),
     ];
     let textures = kinds.map(|k| k.0);
-    for ((case, o), (_, mean_bound, rate)) in independent_family(&textures).into_iter().zip(kinds) {
+    for ((case, o), (_, mean_bound, rate)) in
+        independent_family(&textures, 0).into_iter().zip(kinds)
+    {
         assert!(
             o.mean_mm <= mean_bound,
             "scene {case}: mean {:.3} mm",
@@ -606,12 +608,13 @@ fn independent_renders_decode_to_the_surface() {
         // Corners cut by the end of a surface (the table's edge, a shadow) keep a centre of
         // symmetry off their corner. Those cut along their axis are dropped as cut (their light
         // is narrower than their neighbours'), as are those cut across a lobe when they are
-        // clearly more asymmetric than their neighbours; those the symmetric fit placed inside
-        // the line of their neighbours are moved to where the whole half of a neighbour's light
-        // matches; the rest carry the boundary flag (halved confidence). Points at full
-        // confidence beyond 2 mm stay within the issue's 0.1 %; all of them within 0.4 %
-        // (1.0–1.1 % before the cut tests, where a table edge runs along a column of
-        // primitives; 0.21 and 0.14 % on scenes 1 and 2 when this was written).
+        // clearly more asymmetric than their neighbours, and those only one neighbour confirms;
+        // those the symmetric fit placed inside the line of their neighbours are moved to where
+        // the whole half of a neighbour's light matches; the rest carry the boundary flag
+        // (halved confidence). Points at full confidence beyond 2 mm stay within the issue's
+        // 0.1 %; all of them within 0.4 % (1.0–1.1 % before the cut tests, where a table edge
+        // runs along a column of primitives; 0.10 and 0.09 % on scenes 1 and 2 when this was
+        // written).
         let unflagged = o.far - o.far_flagged;
         assert!(
             unflagged as f64 <= 0.001 * o.measured as f64 + 1.0,
@@ -625,9 +628,9 @@ fn independent_renders_decode_to_the_surface() {
 /// Independent scenes, one per albedo texture range of `textures`, drawn in turn from one
 /// seeded sequence (steps of 12–16, read noise of 1–3 grey levels), rendered at once (the
 /// renderer is single-threaded) and decoded in turn.
-fn independent_family(textures: &[(f64, f64)]) -> Vec<(usize, Outcome)> {
+fn independent_family(textures: &[(f64, f64)], family: u64) -> Vec<(usize, Outcome)> {
     let dir = tempfile::tempdir().expect("tmp");
-    let mut rng = Rng(17);
+    let mut rng = Rng(17 + family);
     let cases: Vec<_> = textures
         .iter()
         .enumerate()
@@ -635,7 +638,7 @@ fn independent_family(textures: &[(f64, f64)]) -> Vec<(usize, Outcome)> {
             let step = [rng.range(12.0, 16.99) as u32, rng.range(12.0, 16.99) as u32];
             let noise = rng.range(1.0, 3.0);
             let texture = rng.range(texture.0, texture.1);
-            let seed = case as u64 + 1;
+            let seed = case as u64 + 1 + 100 * family;
             let pattern = XPointPattern::generate(1024, 768, step, 3, seed).expect("pattern");
             let at = dir.path().join(format!("case{case}"));
             let child = render_independent(&pattern, seed, noise, texture, &at);
@@ -663,28 +666,66 @@ fn independent_family(textures: &[(f64, f64)]) -> Vec<(usize, Outcome)> {
 
 /// The acceptance pooled over twelve independent scenes (the three above and nine more with
 /// mild texture): every mild one decodes ≥ 95 % of the primitives in view with a mean error
-/// ≤ 0.3 mm; of all their points at most 0.15 % lie beyond 2 mm (33 of 25 887, 0.13 %, when
-/// this was written, 42 before cut corners were moved back; the issue asks 0.1 %: corners cut
-/// by an edge, at table ends and shadows, are most of the rest, with 6 placed a whole step
-/// off), and at most 0.1 % are placed at a wrong primitive (7 of 25 956, 3 of them in one
-/// scene). About two minutes on two cores:
+/// ≤ 0.3 mm; of all their points at most 0.1 % lie beyond 2 mm (18 of 25 790, 0.07 %, when
+/// this was written: 33 before corners only one neighbour confirms and disturbed inner corners
+/// were dropped, 42 before cut corners were moved back; 6 of the 18 are placed a whole step off
+/// at depth edges), and at most 0.1 % are placed at a wrong primitive (7 of 25 845). The
+/// thresholds of the cut and drop tests were chosen on these scenes: see
+/// [`held_out_renders_pooled_over_twelve_scenes`] for twelve that were not looked at first.
+/// About two minutes on two cores:
 /// `cargo test --profile ci -p ris-core --test single_shot -- --ignored --nocapture`
 #[test]
 #[ignore = "a survey of twelve scenes, about two minutes on two cores"]
 fn independent_renders_pooled_over_twelve_scenes() {
+    let o = pooled(0, 0.95, 0.3);
+    assert!(
+        o.0 as f64 <= 0.001 * o.1 as f64,
+        "{} of {} beyond 2 mm",
+        o.0,
+        o.1
+    );
+}
+
+/// Twelve more independent scenes, drawn from another seed after the thresholds were set: the
+/// decoder does worse on them, and this records how much (when this was written: 37 of 24 378
+/// points beyond 2 mm, 0.15 %; 7 of 24 426 placed wrong; one mild scene at 92.7 % decoded, with
+/// a step of 12 the detector misses 93 primitives in view; one at a mean of 0.36 mm). Before
+/// the islands read across depth edges were dropped and codewords held within reach of the
+/// prediction, 85 beyond 2 mm and 32 placed wrong, 25 of those in two islands 13 and 29
+/// columns off. The issue's 0.1 % and 95 % are not met here; the bounds are what holds.
+/// `cargo test --profile ci -p ris-core --test single_shot held_out -- --ignored --nocapture`
+#[test]
+#[ignore = "a survey of twelve scenes, about two minutes on two cores"]
+fn held_out_renders_pooled_over_twelve_scenes() {
+    let o = pooled(1, 0.92, 0.4);
+    assert!(
+        o.0 as f64 <= 0.002 * o.1 as f64,
+        "{} of {} beyond 2 mm",
+        o.0,
+        o.1
+    );
+}
+
+/// Decode the twelve scenes of `family` (the third with strong texture), assert every mild one
+/// decodes at least `rate` with a mean error of at most `mean` mm, and that at most 0.1 % are
+/// placed wrong; the points beyond 2 mm and those measured.
+fn pooled(family: u64, rate: f64, mean: f64) -> (usize, usize) {
     let (mild, strong) = ((0.05, 0.15), (0.2, 0.3));
     let mut textures = vec![mild; 12];
     textures[2] = strong;
     let (mut far, mut measured, mut wrong, mut decoded) = (0, 0, 0, 0);
-    for ((case, o), texture) in independent_family(&textures).into_iter().zip(&textures) {
+    for ((case, o), texture) in independent_family(&textures, family)
+        .into_iter()
+        .zip(&textures)
+    {
         far += o.far;
         measured += o.measured;
         wrong += o.wrong;
         decoded += o.decoded;
         if *texture == mild {
-            assert!(o.mean_mm <= 0.3, "scene {case}: mean {:.3} mm", o.mean_mm);
+            assert!(o.mean_mm <= mean, "scene {case}: mean {:.3} mm", o.mean_mm);
             assert!(
-                o.rate() >= 0.95,
+                o.rate() >= rate,
                 "scene {case}: {:.1} % decoded",
                 100.0 * o.rate()
             );
@@ -695,11 +736,8 @@ fn independent_renders_pooled_over_twelve_scenes() {
         100.0 * far as f64 / measured as f64
     );
     assert!(
-        far as f64 <= 0.0015 * measured as f64,
-        "{far} of {measured} beyond 2 mm"
-    );
-    assert!(
         wrong as f64 <= 0.001 * decoded as f64,
         "{wrong} of {decoded} wrong"
     );
+    (far, measured)
 }

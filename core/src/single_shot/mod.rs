@@ -11,7 +11,8 @@ mod reconstruct;
 
 pub use cut::{CUT_INSIDE, CUT_INSIDE_MAX, CUT_SHIFT};
 pub use decode::{
-    decode, Correspondence, DecodeStats, Predict, CUT_ASYMMETRY, CUT_ELONGATION, OFF_GRID,
+    decode, Correspondence, DecodeStats, Predict, CUT_ASYMMETRY, CUT_ELONGATION, INNER_ASYMMETRY,
+    INNER_OFF, MIN_SIDES, OFF_GRID, REACH,
 };
 pub use detect::{detect, DetectParams, Detection, Detector, DISC_MARGIN, WHOLE_LEVEL};
 pub use fusion::{fuse, fuse_from, Fused, FusionRange};

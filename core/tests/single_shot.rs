@@ -656,7 +656,7 @@ fn independent_family(textures: &[(f64, f64)], family: u64) -> Vec<(usize, Outco
             );
             let o = decode_independent(&pattern, &at);
             eprintln!(
-                "independent scene {case} step {step:?} noise {noise:.1} texture {texture:.2}: {}",
+                "independent family {family} scene {case} step {step:?} noise {noise:.1} texture {texture:.2}: {}",
                 o.summary()
             );
             (case, o)
@@ -671,13 +671,13 @@ fn independent_family(textures: &[(f64, f64)], family: u64) -> Vec<(usize, Outco
 /// were dropped, 42 before cut corners were moved back; 6 of the 18 are placed a whole step off
 /// at depth edges), and at most 0.1 % are placed at a wrong primitive (7 of 25 845). The
 /// thresholds of the cut and drop tests were chosen on these scenes: see
-/// [`held_out_renders_pooled_over_twelve_scenes`] for twelve that were not looked at first.
+/// [`held_out_renders_pooled_over_twenty_four_scenes`] for 24 that were not looked at first.
 /// About two minutes on two cores:
 /// `cargo test --profile ci -p ris-core --test single_shot -- --ignored --nocapture`
 #[test]
 #[ignore = "a survey of twelve scenes, about two minutes on two cores"]
 fn independent_renders_pooled_over_twelve_scenes() {
-    let o = pooled(0, 0.95, 0.3);
+    let o = pooled(&[0], 0.95, 0.3);
     assert!(
         o.0 as f64 <= 0.001 * o.1 as f64,
         "{} of {} beyond 2 mm",
@@ -686,18 +686,21 @@ fn independent_renders_pooled_over_twelve_scenes() {
     );
 }
 
-/// Twelve more independent scenes, drawn from another seed after the thresholds were set: the
-/// decoder does worse on them, and this records how much (when this was written: 37 of 24 378
-/// points beyond 2 mm, 0.15 %; 7 of 24 426 placed wrong; one mild scene at 92.7 % decoded, with
-/// a step of 12 the detector misses 93 primitives in view; one at a mean of 0.36 mm). Before
-/// the islands read across depth edges were dropped and codewords held within reach of the
-/// prediction, 85 beyond 2 mm and 32 placed wrong, 25 of those in two islands 13 and 29
-/// columns off. The 0.1 % and 95 % are not met here; the bounds are what holds.
+/// Twenty-four more independent scenes, from two other seeds, drawn after the thresholds
+/// were set: the decoder does worse on them, and this records how much. When this was written,
+/// family 1: 37 of 24 378 points beyond 2 mm (0.15 %), 7 of 24 426 placed wrong, one mild scene
+/// at 92.7 % decoded (at a step of 12 the detector misses 93 primitives on a surface that packs
+/// them 9 px apart), one at a mean of 0.36 mm; family 2: 35 of 24 760 (0.14 %), 16 of 24 834
+/// placed wrong (nearly all one step off beside depth edges), every mild scene 94.9–97.9 %.
+/// Before the islands read across depth edges were dropped and codewords held within reach of
+/// the prediction, family 1 had 85 beyond 2 mm and 32 placed wrong, 25 of those in two islands
+/// 13 and 29 columns off. The 0.1 % and 95 % are not met here; the bounds are what
+/// holds. About four minutes on two cores:
 /// `cargo test --profile ci -p ris-core --test single_shot held_out -- --ignored --nocapture`
 #[test]
-#[ignore = "a survey of twelve scenes, about two minutes on two cores"]
-fn held_out_renders_pooled_over_twelve_scenes() {
-    let o = pooled(1, 0.92, 0.4);
+#[ignore = "a survey of twenty-four scenes, about four minutes on two cores"]
+fn held_out_renders_pooled_over_twenty_four_scenes() {
+    let o = pooled(&[1, 2], 0.92, 0.4);
     assert!(
         o.0 as f64 <= 0.002 * o.1 as f64,
         "{} of {} beyond 2 mm",
@@ -706,18 +709,18 @@ fn held_out_renders_pooled_over_twelve_scenes() {
     );
 }
 
-/// Decode the twelve scenes of `family` (the third with strong texture), assert every mild one
-/// decodes at least `rate` with a mean error of at most `mean` mm, and that at most 0.1 % are
-/// placed wrong; the points beyond 2 mm and those measured.
-fn pooled(family: u64, rate: f64, mean: f64) -> (usize, usize) {
+/// Decode the twelve scenes of each of `families` (the third of each with strong texture),
+/// assert every mild one decodes at least `rate` with a mean error of at most `mean` mm, and
+/// that at most 0.1 % of all are placed wrong; the points beyond 2 mm and those measured.
+fn pooled(families: &[u64], rate: f64, mean: f64) -> (usize, usize) {
     let (mild, strong) = ((0.05, 0.15), (0.2, 0.3));
     let mut textures = vec![mild; 12];
     textures[2] = strong;
     let (mut far, mut measured, mut wrong, mut decoded) = (0, 0, 0, 0);
-    for ((case, o), texture) in independent_family(&textures, family)
-        .into_iter()
-        .zip(&textures)
-    {
+    let outcomes = families
+        .iter()
+        .flat_map(|&f| independent_family(&textures, f).into_iter().zip(&textures));
+    for ((case, o), texture) in outcomes {
         far += o.far;
         measured += o.measured;
         wrong += o.wrong;

@@ -11,6 +11,7 @@ pub mod calibrate;
 pub mod capture;
 pub mod cloud;
 pub mod decode;
+mod disjoint_sets;
 pub mod error;
 pub mod geometry;
 pub mod image;

@@ -5,6 +5,8 @@ use std::collections::HashMap;
 
 use serde::Serialize;
 
+use crate::disjoint_sets::DisjointSets;
+
 /// One connected region out of tolerance.
 #[derive(Clone, Debug, Serialize)]
 pub struct Region {
@@ -46,23 +48,13 @@ pub fn out_of_tolerance_regions(
         }
     }
     // Union-find over occupied voxels.
-    let mut parent: Vec<usize> = (0..members.len()).collect();
-    fn find(parent: &mut [usize], mut x: usize) -> usize {
-        while parent[x] != x {
-            parent[x] = parent[parent[x]];
-            x = parent[x];
-        }
-        x
-    }
+    let mut sets = DisjointSets::new(members.len());
     for (k, &v) in &voxels {
         for dx in -1..=1 {
             for dy in -1..=1 {
                 for dz in -1..=1 {
                     if let Some(&u) = voxels.get(&[k[0] + dx, k[1] + dy, k[2] + dz]) {
-                        let (a, b) = (find(&mut parent, u), find(&mut parent, v));
-                        if a != b {
-                            parent[a] = b;
-                        }
+                        sets.union(u, v);
                     }
                 }
             }
@@ -70,8 +62,7 @@ pub fn out_of_tolerance_regions(
     }
     let mut groups: HashMap<usize, Vec<usize>> = HashMap::new();
     for (v, m) in members.iter().enumerate() {
-        let r = find(&mut parent, v);
-        groups.entry(r).or_default().extend(m);
+        groups.entry(sets.find(v)).or_default().extend(m);
     }
     let mut regions: Vec<Region> = groups
         .into_values()

@@ -16,6 +16,7 @@ use rayon::prelude::*;
 use super::analysis::crossing;
 use super::{MirrorUnit, OmniSensor, Ray, RingPattern};
 use crate::cloud::{PointCloud, Scalar};
+use crate::disjoint_sets::DisjointSets;
 use crate::image::GrayImage;
 use crate::{Error, Result};
 
@@ -882,21 +883,17 @@ impl RingDecoder {
         for b in next.iter().flatten() {
             claims[*b] += 1;
         }
-        let mut parent: Vec<usize> = (0..arcs.len()).collect();
+        let mut sets = DisjointSets::new(arcs.len());
         for (a, b) in next.iter().enumerate() {
             if let Some(b) = *b {
                 if claims[b] == 1 {
-                    let (ra, rb) = (find(&mut parent, a), find(&mut parent, b));
-                    if ra != rb {
-                        parent[ra.max(rb)] = ra.min(rb);
-                    }
+                    sets.union(a, b);
                 }
             }
         }
         let mut groups: Vec<Vec<usize>> = vec![Vec::new(); arcs.len()];
         for a in 0..arcs.len() {
-            let r = find(&mut parent, a);
-            groups[r].push(a);
+            groups[sets.find(a)].push(a);
         }
         groups.retain(|g| !g.is_empty());
         groups
@@ -1010,15 +1007,6 @@ fn gap(line: &[(f32, f32)], i: usize) -> f32 {
         g = g.min(line[i + 1].0 - line[i].0);
     }
     g
-}
-
-/// Union-find root with path halving.
-fn find(parent: &mut [usize], mut x: usize) -> usize {
-    while parent[x] != x {
-        parent[x] = parent[parent[x]];
-        x = parent[x];
-    }
-    x
 }
 
 #[cfg(test)]

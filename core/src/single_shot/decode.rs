@@ -12,6 +12,7 @@
 use super::code::PERIOD;
 use super::detect::{Detection, WHOLE_LEVEL};
 use super::XPointPattern;
+use crate::disjoint_sets::DisjointSets;
 
 /// A decoded X-point: where the camera saw it and which primitive it is.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -567,14 +568,7 @@ fn median(v: &mut [f64]) -> Option<f64> {
 /// to place even its middle one, and a hidden column moves the far side one step.
 fn drop_spliced(placed: &mut [Option<(usize, usize)>], neigh: &[[Option<usize>; 9]]) -> usize {
     let n = placed.len();
-    let mut root: Vec<usize> = (0..n).collect();
-    fn find(root: &mut [usize], mut k: usize) -> usize {
-        while root[k] != k {
-            root[k] = root[root[k]];
-            k = root[k];
-        }
-        k
-    }
+    let mut sets = DisjointSets::new(n);
     let expected = |p: (usize, usize), c: usize| {
         let (a, b) = OFFSETS[c];
         (
@@ -586,8 +580,7 @@ fn drop_spliced(placed: &mut [Option<(usize, usize)>], neigh: &[[Option<usize>; 
         let Some(p) = placed[k] else { continue };
         for (c, m) in neigh[k].iter().enumerate() {
             if let Some(m) = m.filter(|&m| c != 4 && placed[m] == Some(expected(p, c))) {
-                let (a, b) = (find(&mut root, k), find(&mut root, m));
-                root[a] = b;
+                sets.union(k, m);
             }
         }
     }
@@ -595,7 +588,7 @@ fn drop_spliced(placed: &mut [Option<(usize, usize)>], neigh: &[[Option<usize>; 
     let mut span = vec![(usize::MAX, 0usize, usize::MAX, 0usize); n];
     for (k, p) in placed.iter().enumerate() {
         if let Some((i, j)) = *p {
-            let r = find(&mut root, k);
+            let r = sets.find(k);
             let s = &mut span[r];
             *s = (s.0.min(i), s.1.max(i), s.2.min(j), s.3.max(j));
         }
@@ -604,7 +597,7 @@ fn drop_spliced(placed: &mut [Option<(usize, usize)>], neigh: &[[Option<usize>; 
     let mut spliced = vec![false; n];
     for k in 0..n {
         let Some(p) = placed[k] else { continue };
-        let rk = find(&mut root, k);
+        let rk = sets.find(k);
         if !narrow(span[rk]) {
             continue;
         }
@@ -612,7 +605,7 @@ fn drop_spliced(placed: &mut [Option<(usize, usize)>], neigh: &[[Option<usize>; 
             let Some((m, q)) = m.filter(|_| c != 4).and_then(|m| Some((m, placed[m]?))) else {
                 continue;
             };
-            let rm = find(&mut root, m);
+            let rm = sets.find(m);
             if rm == rk || narrow(span[rm]) {
                 continue;
             }
@@ -626,7 +619,7 @@ fn drop_spliced(placed: &mut [Option<(usize, usize)>], neigh: &[[Option<usize>; 
     }
     let mut dropped = 0;
     for k in 0..n {
-        if placed[k].is_some() && spliced[find(&mut root, k)] {
+        if placed[k].is_some() && spliced[sets.find(k)] {
             placed[k] = None;
             dropped += 1;
         }

@@ -717,19 +717,26 @@ fn pooled(families: &[u64], rate: f64, mean: f64) -> (usize, usize) {
     let mut textures = vec![mild; 12];
     textures[2] = strong;
     let (mut far, mut measured, mut wrong, mut decoded) = (0, 0, 0, 0);
-    let outcomes = families
-        .iter()
-        .flat_map(|&f| independent_family(&textures, f).into_iter().zip(&textures));
-    for ((case, o), texture) in outcomes {
+    let outcomes = families.iter().flat_map(|&f| {
+        independent_family(&textures, f)
+            .into_iter()
+            .zip(&textures)
+            .map(move |(o, t)| (f, o, t))
+    });
+    for (family, (case, o), texture) in outcomes {
         far += o.far;
         measured += o.measured;
         wrong += o.wrong;
         decoded += o.decoded;
         if *texture == mild {
-            assert!(o.mean_mm <= mean, "scene {case}: mean {:.3} mm", o.mean_mm);
+            assert!(
+                o.mean_mm <= mean,
+                "family {family} scene {case}: mean {:.3} mm",
+                o.mean_mm
+            );
             assert!(
                 o.rate() >= rate,
-                "scene {case}: {:.1} % decoded",
+                "family {family} scene {case}: {:.1} % decoded",
                 100.0 * o.rate()
             );
         }

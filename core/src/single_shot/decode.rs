@@ -150,8 +150,9 @@ pub type Predict<'a> = &'a (dyn Fn(f64, f64) -> Option<(f64, f64)> + Sync);
 /// Decode `detections` against `pattern`. `predict` gives, for a camera point, the projector
 /// point it would have on the reference (the Gray-code reference through the sensor model):
 /// the code repeats every [`PERIOD`] grid cells, and the repeat nearest to the prediction is
-/// taken if within [`REACH`] of it; without a prediction a codeword that occurs twice in the
-/// pattern is left out.
+/// taken if within [`REACH`] of it; a codeword at a camera point the prediction does not
+/// cover is left out; without a prediction at all, a codeword that occurs twice in the pattern
+/// is left out and one that occurs once is taken.
 pub fn decode(
     detections: &[Detection],
     pattern: &XPointPattern,
@@ -268,11 +269,7 @@ pub fn decode(
                 continue;
             }
             if let Some(q) = nb.and_then(|m| own[m]) {
-                let (a, b) = OFFSETS[c];
-                if q == (
-                    (i as i64 + a as i64) as usize,
-                    (j as i64 + b as i64) as usize,
-                ) {
+                if q == beside((i, j), c) {
                     agree += 1;
                 } else {
                     disagree += 1;
@@ -369,15 +366,10 @@ pub fn decode(
         .iter()
         .enumerate()
         .map(|(k, p)| {
-            let Some((i, j)) = *p else { return 0 };
+            let Some(p) = *p else { return 0 };
             let mut sides = 0u8;
             for (bit, c) in [3usize, 5, 1, 7].into_iter().enumerate() {
-                let (a, b) = OFFSETS[c];
-                let want = (
-                    (i as i64 + i64::from(a)) as usize,
-                    (j as i64 + i64::from(b)) as usize,
-                );
-                if neigh[k][c].and_then(|m| placed[m]) == Some(want) {
+                if neigh[k][c].and_then(|m| placed[m]) == Some(beside(p, c)) {
                     sides |= 1 << bit;
                 }
             }
@@ -569,17 +561,10 @@ fn median(v: &mut [f64]) -> Option<f64> {
 fn drop_spliced(placed: &mut [Option<(usize, usize)>], neigh: &[[Option<usize>; 9]]) -> usize {
     let n = placed.len();
     let mut sets = DisjointSets::new(n);
-    let expected = |p: (usize, usize), c: usize| {
-        let (a, b) = OFFSETS[c];
-        (
-            (p.0 as i64 + i64::from(a)) as usize,
-            (p.1 as i64 + i64::from(b)) as usize,
-        )
-    };
     for k in 0..n {
         let Some(p) = placed[k] else { continue };
         for (c, m) in neigh[k].iter().enumerate() {
-            if let Some(m) = m.filter(|&m| c != 4 && placed[m] == Some(expected(p, c))) {
+            if let Some(m) = m.filter(|&m| c != 4 && placed[m] == Some(beside(p, c))) {
                 sets.union(k, m);
             }
         }
@@ -614,6 +599,7 @@ fn drop_spliced(placed: &mut [Option<(usize, usize)>], neigh: &[[Option<usize>; 
             let (ei, ej) = (q.0 as i64 - i64::from(a), q.1 as i64 - i64::from(b));
             if (ei - p.0 as i64).abs().max((ej - p.1 as i64).abs()) > 1 {
                 spliced[rk] = true;
+                break;
             }
         }
     }
@@ -625,6 +611,16 @@ fn drop_spliced(placed: &mut [Option<(usize, usize)>], neigh: &[[Option<usize>; 
         }
     }
     dropped
+}
+
+/// The grid place of neighbour `c` (in [`OFFSETS`] order) of grid place `p`; one off the grid
+/// wraps to a place no primitive has.
+fn beside(p: (usize, usize), c: usize) -> (usize, usize) {
+    let (a, b) = OFFSETS[c];
+    (
+        (p.0 as i64 + i64::from(a)) as usize,
+        (p.1 as i64 + i64::from(b)) as usize,
+    )
 }
 
 /// A window's symbols as one number, two bits each.

@@ -76,6 +76,14 @@ pub struct DecodeStats {
     /// or rows wide that agree among themselves and that a wider island beside them
     /// contradicts by more than a step.
     pub spliced: usize,
+    /// Corners beside a depth edge that the code cannot place: a neighbour across the edge
+    /// puts them one step from where their own codeword (or their other neighbours) does,
+    /// their symbol is the code's at both places, and the grid on neither side fits them
+    /// clearly better (see [`EDGE_MARGIN`]).
+    pub undecided: usize,
+    /// Corners beside a missing neighbour dropped as lying well inside the straight line of
+    /// their neighbours (see [`super::drop_kinked`]).
+    pub kinked: usize,
 }
 
 /// How far, in grid steps, a detection may lie from where each of its placed neighbours puts
@@ -130,6 +138,17 @@ pub const INNER_OFF: f64 = 0.8;
 /// independent renderer, an island of 9 corners that confirmed each other lay 29 columns off
 /// (over 700 mm), accepted while a codeword with one place was never checked.
 pub const REACH: f64 = 0.25;
+
+/// How much better (in grid steps of the camera's lattice) the grid on a corner's own side
+/// must place it than the grid across a depth edge that puts it one step over, when its symbol
+/// is the code's at both places. Where the edge hides a column whose symbol repeats its
+/// neighbour's, the window read across the edge is the one a step over, the two sides join
+/// without a seam in the code, and only the lattice can tell (the far side's grid continues
+/// through the corner, the near side's is off by the jump's fraction of a step). On 36 seeded
+/// scenes of the independent renderer the 16 such corners placed one step off lay within
+/// 0.04 of a step of the side that claimed them (most within 0.01) as against the other;
+/// of the 212 right ones that met such a contradiction, 17 lay within 0.05.
+pub const EDGE_MARGIN: f64 = 0.05;
 
 /// Grid offsets of the 8 neighbours and the centre, row by row (window order).
 const OFFSETS: [(i32, i32); 9] = [
@@ -360,6 +379,15 @@ pub fn decode(
             }
         }
     }
+
+    stats.undecided = drop_undecided(
+        &mut placed,
+        &values,
+        (&prims.value, cols),
+        detections,
+        &neigh,
+        (hg, wg),
+    );
 
     // Which grid neighbours stand where the grid says (left, right, up, down).
     let sides: Vec<u8> = placed
@@ -611,6 +639,68 @@ fn drop_spliced(placed: &mut [Option<(usize, usize)>], neigh: &[[Option<usize>; 
         }
     }
     dropped
+}
+
+/// Drop the corners a depth edge leaves undecided, the count dropped. A corner placed at `p`
+/// whose grid neighbour across an edge is placed where it puts the corner one step over, at
+/// `p'`, is read the same at both places when its own symbol is the code's at `p'` too: the
+/// window that placed it (or the neighbours that propagated it) read across the edge, and
+/// where the hidden column repeats its neighbour's symbols the code cannot tell. The corner
+/// stays only where the grid of its own side places it better, by [`EDGE_MARGIN`] of a step,
+/// than the grid across the edge places it at `p'`. All are judged before any is dropped.
+fn drop_undecided(
+    placed: &mut [Option<(usize, usize)>],
+    values: &[Option<u8>],
+    (code, cols): (&[u8], usize),
+    detections: &[Detection],
+    neigh: &[[Option<usize>; 9]],
+    (hg, wg): ([f64; 2], [f64; 2]),
+) -> usize {
+    let rows = code.len() / cols.max(1);
+    let mut alternatives = Vec::with_capacity(8);
+    let mut undecided = Vec::new();
+    for k in 0..placed.len() {
+        let (Some(p), Some(own)) = (placed[k], values[k]) else {
+            continue;
+        };
+        alternatives.clear();
+        for (c, nb) in neigh[k].iter().enumerate() {
+            let Some(q) = nb.filter(|_| c != 4).and_then(|m| placed[m]) else {
+                continue;
+            };
+            if q == beside(p, c) {
+                continue;
+            }
+            let (a, b) = OFFSETS[c];
+            let (i, j) = (q.0 as i64 - i64::from(a), q.1 as i64 - i64::from(b));
+            let one_step = (i - p.0 as i64).abs().max((j - p.1 as i64).abs()) == 1;
+            if !one_step || i < 0 || j < 0 || i as usize >= cols || j as usize >= rows {
+                continue;
+            }
+            let alt = (i as usize, j as usize);
+            if code[alt.1 * cols + alt.0] == own && !alternatives.contains(&alt) {
+                alternatives.push(alt);
+            }
+        }
+        if alternatives.is_empty() {
+            continue;
+        }
+        // The corner's own place leaves the grids it is measured against.
+        placed[k] = None;
+        let here = lattice_residual(k, p, detections, neigh, placed, hg, wg);
+        let over = alternatives
+            .iter()
+            .map(|&a| lattice_residual(k, a, detections, neigh, placed, hg, wg))
+            .fold(f64::INFINITY, f64::min);
+        placed[k] = Some(p);
+        if here + EDGE_MARGIN >= over {
+            undecided.push(k);
+        }
+    }
+    for &k in &undecided {
+        placed[k] = None;
+    }
+    undecided.len()
 }
 
 /// The grid place of neighbour `c` (in [`OFFSETS`] order) of grid place `p`; one off the grid
@@ -1193,14 +1283,16 @@ mod tests {
 
     /// A depth edge along the grid hides one column: the camera sees the columns on either side
     /// of it as neighbours, and the windows across it read as codewords elsewhere in the code.
-    /// Over a seeded family of patterns and hidden columns, no corner is placed more than a
-    /// step from its primitive, and the islands of spliced placements that confirmed each
-    /// other (which lay further) are what was dropped. A column beside the edge whose codeword
-    /// places it one step off, where the hidden column repeats its neighbour, stays possible.
+    /// Over a seeded family of patterns and hidden columns, no corner is placed off its
+    /// primitive: the islands of spliced placements that confirmed each other (which lay
+    /// further) are dropped, and so are the corners beside the edge that the code places one
+    /// step over where the hidden column repeats its neighbour's symbols (the far side moves
+    /// exactly one step, so the lattice cannot tell either: 23 such placements before
+    /// [`EDGE_MARGIN`]).
     #[test]
     fn codewords_read_across_a_hidden_column_place_no_corner_far() {
         let mut rng = crate::testing::Rng(23);
-        let (mut spliced, mut decoded, mut one_off) = (0, 0, 0);
+        let (mut spliced, mut undecided, mut decoded) = (0, 0, 0);
         for seed in 1..=16u64 {
             let step = [rng.range(12.0, 16.99) as u32, rng.range(12.0, 16.99) as u32];
             let (pattern, found) = seen_whole(640, 360, step, seed);
@@ -1224,9 +1316,8 @@ mod tests {
                     m.x
                 };
                 let off = (m.u - x).hypot(m.v - m.y);
-                one_off += usize::from(off > 1.0);
                 assert!(
-                    off < 1.5 * dx,
+                    off < 1.0,
                     "seed {seed}: corner at ({x:.1}, {:.1}) placed at ({:.1}, {:.1}), {stats:?}",
                     m.y,
                     m.u,
@@ -1234,14 +1325,13 @@ mod tests {
                 );
             }
             spliced += stats.spliced;
+            undecided += stats.undecided;
             decoded += matches.len();
         }
-        eprintln!(
-            "{spliced} spliced placements dropped, {one_off} one step off, {decoded} decoded"
-        );
+        eprintln!("{spliced} spliced placements dropped, {undecided} undecided, {decoded} decoded");
         assert!(
-            spliced > 0,
-            "no island was spliced: the family tests nothing"
+            spliced > 0 && undecided > 0,
+            "no island was spliced or no corner undecided: the family tests nothing"
         );
     }
 

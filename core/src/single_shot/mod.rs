@@ -9,10 +9,10 @@ mod fusion;
 mod pattern;
 mod reconstruct;
 
-pub use cut::{CUT_INSIDE, CUT_INSIDE_MAX, CUT_SHIFT};
+pub use cut::{drop_kinked, CUT_INSIDE, CUT_INSIDE_MAX, CUT_SHIFT, KINK_INSIDE, KINK_STRAIGHT};
 pub use decode::{
-    decode, Correspondence, DecodeStats, Predict, CUT_ASYMMETRY, CUT_ELONGATION, INNER_ASYMMETRY,
-    INNER_OFF, MIN_SIDES, OFF_GRID, REACH,
+    decode, Correspondence, DecodeStats, Predict, CUT_ASYMMETRY, CUT_ELONGATION, EDGE_MARGIN,
+    INNER_ASYMMETRY, INNER_OFF, MIN_SIDES, OFF_GRID, REACH,
 };
 pub use detect::{detect, DetectParams, Detection, Detector, DISC_MARGIN, WHOLE_LEVEL};
 pub use fusion::{fuse, fuse_from, Fused, FusionRange};

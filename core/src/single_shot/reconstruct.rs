@@ -166,7 +166,8 @@ pub struct Measured {
 
 /// The X-points of one camera `image` of `pattern` (found by `detector`, which keeps its working
 /// images for the next frame), and those decoded (the repeat chosen by `predict`), with the
-/// corners an edge cut moved to where the half it did not reach places them.
+/// corners an edge cut moved to where the half it did not reach places them, and those it cut
+/// further dropped.
 pub fn decode_frame(
     detector: &mut super::Detector,
     image: &crate::image::GrayImage,
@@ -180,6 +181,7 @@ pub fn decode_frame(
     let found = detector.detect_image(image);
     let (mut matches, mut stats) = super::decode(&found, pattern, predict);
     stats.recentred = detector.recentre_cut(&mut matches, pattern);
+    stats.kinked = super::cut::drop_kinked(&mut matches, pattern);
     (found, matches, stats)
 }
 

@@ -116,7 +116,7 @@ pub fn run(
         );
     }
     println!(
-        "{} points from {} X-points ({} gaps between primitives set aside; {} by their codeword, {} from a neighbour; {} codewords read, {} matched; {} dropped as cut by an edge, {} moved back from a cut, {} refused off the grid, {} confirmed by one neighbour only, {} disturbed inner corners, {} read across a depth edge; {} beside an edge or a shadow at half confidence, where a cut primitive can be 2-3 mm off); prepare {:.0} ms, decode + reconstruct {:.0} ms; wrote {}",
+        "{} points from {} X-points ({} gaps between primitives set aside; {} by their codeword, {} from a neighbour; {} codewords read, {} matched; {} dropped as cut by an edge, {} moved back from a cut, {} refused off the grid, {} confirmed by one neighbour only, {} disturbed inner corners, {} read across a depth edge, {} one step over that the code cannot tell across an edge, {} cut well inside their neighbours' line; {} beside an edge or a shadow at half confidence, where a cut primitive can be 2-3 mm off); prepare {:.0} ms, decode + reconstruct {:.0} ms; wrote {}",
         cloud.len(),
         m.detected,
         m.stats.gaps,
@@ -130,6 +130,8 @@ pub fn run(
         m.stats.lone,
         m.stats.disturbed,
         m.stats.spliced,
+        m.stats.undecided,
+        m.stats.kinked,
         m.at_boundary,
         prepare.as_secs_f64() * 1e3,
         (m.decode_s + m.reconstruct_s) * 1e3,

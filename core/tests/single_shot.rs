@@ -666,53 +666,52 @@ fn independent_family(textures: &[(f64, f64)], family: u64) -> Vec<(usize, Outco
 
 /// The acceptance pooled over twelve independent scenes (the three above and nine more with
 /// mild texture): every mild one decodes ≥ 95 % of the primitives in view with a mean error
-/// ≤ 0.3 mm; of all their points at most 0.1 % lie beyond 2 mm (18 of 25 790, 0.07 %, when
-/// this was written: 33 before corners only one neighbour confirms and disturbed inner corners
-/// were dropped, 42 before cut corners were moved back; 6 of the 18 are placed a whole step off
-/// at depth edges), and at most 0.1 % are placed at a wrong primitive (7 of 25 845). The
-/// thresholds of the cut and drop tests were chosen on these scenes: see
+/// ≤ 0.3 mm; of all their points at most 0.1 % lie beyond 2 mm (when
+/// this was written: 14 of 25 763, 0.05 %; 18 before the undecided and kinked corners were
+/// dropped, 33 before corners only one neighbour confirms and disturbed inner corners were,
+/// 42 before cut corners were moved back), and at most 0.1 % are placed at a wrong primitive
+/// (3 of 25 814). The thresholds of the cut and drop tests were chosen on these scenes: see
 /// [`held_out_renders_pooled_over_twenty_four_scenes`] for 24 that were not looked at first.
 /// About two minutes on two cores:
-/// `cargo test --profile ci -p ris-core --test single_shot -- --ignored --nocapture`
+/// `cargo test --profile ci -p ris-core --test single_shot pooled_over_twelve -- --ignored --nocapture`
 #[test]
 #[ignore = "a survey of twelve scenes, about two minutes on two cores"]
 fn independent_renders_pooled_over_twelve_scenes() {
-    let o = pooled(&[0], 0.95, 0.3);
-    assert!(
-        o.0 as f64 <= 0.001 * o.1 as f64,
-        "{} of {} beyond 2 mm",
-        o.0,
-        o.1
-    );
+    pooled(&[0], 0.95, 0.3, 0.001);
 }
 
-/// Twenty-four more independent scenes, from two other seeds, drawn after the thresholds
-/// were set: the decoder does worse on them, and this records how much. When this was written,
-/// family 1: 37 of 24 378 points beyond 2 mm (0.15 %), 7 of 24 426 placed wrong, one mild scene
-/// at 92.7 % decoded (at a step of 12 the detector misses 93 primitives on a surface that packs
-/// them 9 px apart), one at a mean of 0.36 mm; family 2: 35 of 24 760 (0.14 %), 16 of 24 834
-/// placed wrong (nearly all one step off beside depth edges), every mild scene 94.9–97.9 %.
-/// Before the islands read across depth edges were dropped and codewords held within reach of
-/// the prediction, family 1 had 85 beyond 2 mm and 32 placed wrong, 25 of those in two islands
-/// 13 and 29 columns off. The 0.1 % and 95 % are not met here; the bounds are what
-/// holds. About four minutes on two cores:
+/// Twenty-four independent scenes from two more seeds (families 5 and 6), drawn after every
+/// threshold of the decoder was set and not looked at before: the acceptance on scenes nobody
+/// tuned for. When this was written: 38 of 52 260 points beyond 2 mm (0.07 %), 4 of 52 339
+/// placed wrong, every mild scene 94.7–98.9 % decoded with a mean of at most 0.28 mm. About four
+/// minutes on two cores:
 /// `cargo test --profile ci -p ris-core --test single_shot held_out -- --ignored --nocapture`
 #[test]
 #[ignore = "a survey of twenty-four scenes, about four minutes on two cores"]
 fn held_out_renders_pooled_over_twenty_four_scenes() {
-    let o = pooled(&[1, 2], 0.92, 0.4);
-    assert!(
-        o.0 as f64 <= 0.002 * o.1 as f64,
-        "{} of {} beyond 2 mm",
-        o.0,
-        o.1
-    );
+    pooled(&[5, 6], 0.94, 0.3, 0.001);
+}
+
+/// Forty-eight independent scenes (families 1–4) that were held out in turn and then used to
+/// set the later drops: the decoder does a little worse on them, and this records how much.
+/// When this was written: families 1 and 2, 47 of 49 074 points beyond 2 mm (0.10 %), 4 of
+/// 49 175 placed wrong (85 and 32 before the spliced islands, the reach of the prediction, the
+/// undecided and the kinked corners); families 3 and 4, 70 of 47 810 (0.15 %; 92 before the
+/// undecided and kinked corners, 30 of them in the two strongly textured scenes), 4 of 47 918
+/// placed wrong. One mild scene decodes 92.6 % (at a step of 12 the detector misses primitives a
+/// tilted surface packs 9 px apart), two have a mean of 0.36 and 0.38 mm. About eight minutes on
+/// two cores:
+/// `cargo test --profile ci -p ris-core --test single_shot earlier_held_out -- --ignored --nocapture`
+#[test]
+#[ignore = "a survey of forty-eight scenes, about eight minutes on two cores"]
+fn earlier_held_out_renders_pooled_over_forty_eight_scenes() {
+    pooled(&[1, 2, 3, 4], 0.92, 0.4, 0.002);
 }
 
 /// Decode the twelve scenes of each of `families` (the third of each with strong texture),
-/// assert every mild one decodes at least `rate` with a mean error of at most `mean` mm, and
-/// that at most 0.1 % of all are placed wrong; the points beyond 2 mm and those measured.
-fn pooled(families: &[u64], rate: f64, mean: f64) -> (usize, usize) {
+/// assert every mild one decodes at least `rate` with a mean error of at most `mean` mm, that
+/// at most 0.1 % of all are placed wrong and at most `far_share` of all points lie beyond 2 mm.
+fn pooled(families: &[u64], rate: f64, mean: f64, far_share: f64) {
     let (mild, strong) = ((0.05, 0.15), (0.2, 0.3));
     let mut textures = vec![mild; 12];
     textures[2] = strong;
@@ -749,5 +748,8 @@ fn pooled(families: &[u64], rate: f64, mean: f64) -> (usize, usize) {
         wrong as f64 <= 0.001 * decoded as f64,
         "{wrong} of {decoded} wrong"
     );
-    (far, measured)
+    assert!(
+        far as f64 <= far_share * measured as f64,
+        "{far} of {measured} beyond 2 mm"
+    );
 }

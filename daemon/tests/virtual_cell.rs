@@ -243,8 +243,15 @@ fn risd_scans_the_virtual_cell_and_survives_a_lost_camera() {
     let id = reply["scan_id"].as_str().expect("id").to_string();
     dog.stage("the scan after the reconnection");
     let end = wait_end(&st, &id);
-    assert_eq!(end["state"], "done", "{end}");
     dog.stage("SIGTERM");
     let (status, log) = risd.terminate();
+    // risd's own account of the scan says which device stalled (a rare flake on a fresh
+    // machine: once, camera s4 sent no frame after s2 came back).
+    assert_eq!(
+        end["state"],
+        "done",
+        "{end}\nrisd's log, last lines:\n{}",
+        log[log.len().saturating_sub(60)..].join("\n")
+    );
     assert!(status.success(), "{log:#?}");
 }

@@ -44,6 +44,11 @@ impl DeviceSpec {
     }
 }
 
+/// The GigE Vision bootstrap register of the control channel privilege (GigE Vision 2.0,
+/// table 28-1), and its control and exclusive-access bits.
+const CONTROL_CHANNEL_PRIVILEGE: u64 = 0x0A00;
+const CONTROL_BITS: u32 = 0b11;
+
 /// Sample depth of the stream.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum PixelDepth {
@@ -211,6 +216,11 @@ impl AravisCamera {
     fn configure(&mut self) -> Result<()> {
         let name = self.name();
         let c = &self.camera;
+        // An acquisition that an earlier connection left running (this client's before a
+        // reconnect, or a crashed one's) may stream to that connection's port; stopping it
+        // makes the camera take the new stream's destination when this one starts. A camera
+        // that refuses the command has nothing running.
+        let _ = c.stop_acquisition();
         let format = match self.options.depth {
             PixelDepth::Mono8 => PixelFormat::MONO_8,
             PixelDepth::Mono16 => PixelFormat::MONO_16,
@@ -261,9 +271,27 @@ impl AravisCamera {
         Ok(())
     }
 
-    /// Whether the control channel still answers (a register read).
-    fn alive(&self) -> bool {
-        self.camera.exposure_time().is_ok()
+    /// Why a silent stream is a lost camera rather than a late frame: its control channel no
+    /// longer answers, or (GigE Vision) it answers but this client no longer holds control. A
+    /// camera that misses its controller's heartbeats for its timeout (a stalled host, a
+    /// network hiccup) gives control up and stops streaming while its registers still read,
+    /// so retrying the trigger never brings a frame; only reopening it (which takes control
+    /// again) does.
+    fn lost(&self) -> Option<&'static str> {
+        if self.camera.exposure_time().is_err() {
+            return Some("the camera stopped answering (control channel lost)");
+        }
+        let gv = self
+            .camera
+            .device()
+            .and_then(|d| gio::glib::object::Cast::downcast::<GvDevice>(d).ok())?;
+        match gv.read_register(CONTROL_CHANNEL_PRIVILEGE) {
+            Ok((_, privilege)) if privilege & CONTROL_BITS == 0 => Some(
+                "the camera gave up this client's control (a heartbeat timeout) and stopped streaming",
+            ),
+            Ok(_) => None,
+            Err(_) => Some("the camera stopped answering (control channel lost)"),
+        }
     }
 
     fn to_frame(&self, buffer: &Buffer, waited: Duration) -> Result<Frame> {
@@ -445,20 +473,15 @@ impl Camera for AravisCamera {
                 stream.timeout_pop_buffer(left.as_micros() as u64)
             };
             let Some(buffer) = popped else {
-                // A silent stream is a timeout while the camera still answers, a disconnect
-                // when its control channel is gone too.
-                return Err(if self.alive() {
-                    DriverError::new(
+                // A silent stream is a timeout while the camera still answers to this client,
+                // a disconnect when its control channel, or its control, is gone.
+                return Err(match self.lost() {
+                    None => DriverError::new(
                         ErrorKind::Timeout,
                         name,
                         format!("no frame within {} ms", timeout.as_millis()),
-                    )
-                } else {
-                    DriverError::new(
-                        ErrorKind::Disconnected,
-                        name,
-                        "the camera stopped answering (control channel lost)",
-                    )
+                    ),
+                    Some(why) => DriverError::new(ErrorKind::Disconnected, name, why),
                 });
             };
             let status = buffer.status();

@@ -71,6 +71,15 @@ impl LoopbackCamera {
     }
 }
 
+impl LoopbackCamera {
+    /// Give up the current client's control, as a GigE Vision camera does when that client's
+    /// heartbeats stop for the camera's heartbeat timeout: streaming stops (its registers still
+    /// read) until a client takes control again.
+    pub fn drop_control(&self) {
+        self.fake.set_control_channel_privilege(0);
+    }
+}
+
 impl Drop for LoopbackCamera {
     fn drop(&mut self) {
         let raw: *mut aravis_sys::ArvFakeCamera = self.fake.to_glib_none().0;
@@ -119,4 +128,56 @@ unsafe extern "C" fn fill_frame(
     // while the fake fills it.
     let pixels = unsafe { std::slice::from_raw_parts_mut(ptr, need) };
     fill(pixels, w, h, f64::from(exposure_us));
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::Duration;
+
+    use ris_drivers::{Camera, ErrorKind, TriggerMode};
+
+    use super::*;
+    use crate::{AravisCamera, DeviceSpec, OpenOptions};
+
+    /// A camera that gave this client's control up (a heartbeat timeout) streams nothing while
+    /// its registers still read: the silent stream is reported as a disconnect, not a late
+    /// frame, so the acquisition reconnects (taking control again) instead of retrying the
+    /// trigger until it gives up; after the reconnect, frames come again.
+    #[test]
+    fn a_camera_that_dropped_control_is_disconnected_and_a_reconnect_brings_frames() {
+        let (w, h) = (64u32, 48u32);
+        let gige = LoopbackCamera::start(
+            "127.0.0.1",
+            200.0,
+            Box::new(move |buf: &mut [u8], fw: u32, fh: u32, _| {
+                if (fw, fh) == (w, h) {
+                    buf.fill(77);
+                }
+            }),
+        )
+        .expect("loopback GigE Vision camera");
+        let mut cam = AravisCamera::open(
+            DeviceSpec::parse("127.0.0.1"),
+            OpenOptions {
+                roi: Some((0, 0, w as i32, h as i32)),
+                ..OpenOptions::default()
+            },
+        )
+        .expect("camera on 127.0.0.1");
+        cam.set_trigger(TriggerMode::Software)
+            .expect("trigger mode");
+        cam.start().expect("start");
+        let frame = |cam: &mut AravisCamera| {
+            cam.trigger().expect("trigger");
+            cam.next_frame(Duration::from_secs(2))
+        };
+        frame(&mut cam).expect("a frame while in control");
+        gige.drop_control();
+        let e = frame(&mut cam).expect_err("no frame without control");
+        assert_eq!(e.kind, ErrorKind::Disconnected, "{e}");
+        assert!(e.to_string().contains("heartbeat"), "{e}");
+        cam.reconnect().expect("reconnect");
+        let f = frame(&mut cam).expect("a frame after the reconnect");
+        assert_eq!((f.width(), f.height()), (w, h));
+    }
 }

@@ -551,6 +551,9 @@ mod tests {
 
     #[test]
     fn the_fake_camera_streams_triggered_frames() {
+        let _one = crate::FAKE_CAMERAS
+            .lock()
+            .unwrap_or_else(|e| e.into_inner());
         let mut cam = AravisCamera::open(
             DeviceSpec::Fake,
             OpenOptions {

@@ -16,6 +16,12 @@ pub use camera::{discover, AravisCamera, DeviceSpec, OpenOptions, PixelDepth};
 #[cfg(feature = "aravis")]
 pub use loopback::{Fill, LoopbackCamera};
 
+/// Serialises the unit tests that create Aravis fake cameras: two at once in one process
+/// (the in-process fake and the loopback GigE Vision one) fail at random, a feature or the
+/// stream channel missing, since the fake's shared state is not guarded.
+#[cfg(all(test, feature = "aravis"))]
+pub(crate) static FAKE_CAMERAS: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 /// Whether this build includes the Aravis backend.
 pub const AVAILABLE: bool = cfg!(feature = "aravis");
 

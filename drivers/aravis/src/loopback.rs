@@ -145,6 +145,9 @@ mod tests {
     /// trigger until it gives up; after the reconnect, frames come again.
     #[test]
     fn a_camera_that_dropped_control_is_disconnected_and_a_reconnect_brings_frames() {
+        let _one = crate::FAKE_CAMERAS
+            .lock()
+            .unwrap_or_else(|e| e.into_inner());
         let (w, h) = (64u32, 48u32);
         let gige = LoopbackCamera::start(
             "127.0.0.1",

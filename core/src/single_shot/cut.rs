@@ -149,11 +149,8 @@ pub fn drop_kinked(matches: &mut Vec<Correspondence>, pattern: &XPointPattern) -
         })
         .collect();
     let before = matches.len();
-    let mut k = 0;
-    matches.retain(|_| {
-        k += 1;
-        !kinked[k - 1]
-    });
+    let mut kinked = kinked.into_iter();
+    matches.retain(|_| !kinked.next().unwrap_or(false));
     before - matches.len()
 }
 

@@ -383,7 +383,7 @@ pub fn decode(
     stats.undecided = drop_undecided(
         &mut placed,
         &values,
-        (&prims.value, cols),
+        (&prims.value, cols, rows),
         detections,
         &neigh,
         (hg, wg),
@@ -651,12 +651,11 @@ fn drop_spliced(placed: &mut [Option<(usize, usize)>], neigh: &[[Option<usize>; 
 fn drop_undecided(
     placed: &mut [Option<(usize, usize)>],
     values: &[Option<u8>],
-    (code, cols): (&[u8], usize),
+    (code, cols, rows): (&[u8], usize, usize),
     detections: &[Detection],
     neigh: &[[Option<usize>; 9]],
     (hg, wg): ([f64; 2], [f64; 2]),
 ) -> usize {
-    let rows = code.len() / cols.max(1);
     let mut alternatives = Vec::with_capacity(8);
     let mut undecided = Vec::new();
     for k in 0..placed.len() {

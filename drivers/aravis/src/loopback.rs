@@ -69,9 +69,7 @@ impl LoopbackCamera {
             fill,
         })
     }
-}
 
-impl LoopbackCamera {
     /// Give up the current client's control, as a GigE Vision camera does when that client's
     /// heartbeats stop for the camera's heartbeat timeout: streaming stops (its registers still
     /// read) until a client takes control again.

@@ -208,7 +208,10 @@ fn evaluate(
                 }
                 continue;
             };
-            if edge {
+            // The image's edge, or the end of the surface beside it (nothing there to light),
+            // cuts the primitives about it.
+            let void = |j: usize| truth.xyz.get(j).is_some_and(|q| q[0].is_nan());
+            if edge || void(i - 1) || void(i + 1) || void(i - w) || void(i + w) {
                 mark(&mut broken, pos, (u0, v0), (dx, dy), (cols, rows), r + 1.5);
                 continue;
             }
@@ -251,7 +254,7 @@ fn evaluate(
         }
     }
     // A primitive is seen whole when its corner is seen, nothing of it is shadowed or cut by
-    // the image's edge, and no depth edge (a jump in the truth between neighbouring pixels)
+    // the image's edge or the end of the surface, and no depth edge (a jump in the truth between neighbouring pixels)
     // runs through it.
     for y in 1..h {
         for x in 1..w {

@@ -75,9 +75,10 @@ impl Default for DetectParams {
 /// a free slope makes the centre less certain. On seeded synthetic corners under a sinusoidal
 /// albedo of 20 % (`corners_stay_put_under_an_albedo_slope`), the mean error is 0.069 px with
 /// no slope fitted, 0.060 px with a free slope, 0.051 px at this share; on plain ones 0.008,
-/// 0.022 and 0.009 px. On the 84 independent scenes (0.5 was next best): 110 of 174 907 points
-/// beyond 2 mm (169 without a slope, 108 with a free one), the worst mildly textured scene's
-/// mean 0.30 mm (0.38, 0.28), the mean over all 0.160 mm (0.184, 0.164).
+/// 0.022 and 0.009 px. On the 84 independent scenes of families 0–6 (a share of 0.5 next
+/// best, 1 worse): 109 of 175 000 points beyond 2 mm against 169 without the slope, the worst
+/// mildly textured scene's mean 0.30 mm against 0.38, the mean over all scenes 0.160 mm
+/// against 0.184 (a free slope: 108, 0.28 and 0.164 mm, but the plain corners above).
 const SLOPE_RIDGE: f64 = 0.25;
 
 /// Grey levels added before the logarithm on which corners are placed: keeps read noise in the

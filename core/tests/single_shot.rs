@@ -254,8 +254,8 @@ fn evaluate(
         }
     }
     // A primitive is seen whole when its corner is seen, nothing of it is shadowed or cut by
-    // the image's edge or the end of the surface, and no depth edge (a jump in the truth between neighbouring pixels)
-    // runs through it.
+    // the image's edge or the end of the surface, and no depth edge (a jump in the truth
+    // between neighbouring pixels) runs through it.
     for y in 1..h {
         for x in 1..w {
             let (a, b, c) = (tp[y * w + x], tp[y * w + x - 1], tp[(y - 1) * w + x]);

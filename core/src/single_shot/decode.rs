@@ -908,19 +908,26 @@ const TILE_STEPS: f64 = 4.0;
 /// Fewest samples of each direction about a tile for its own grid vectors.
 const TILE_SAMPLES: usize = 16;
 
+/// Most [`LocalGrid`] tiles along each side of the image.
+const MAX_TILES: usize = 256;
+
 impl LocalGrid {
     fn new(
         d: &[Detection],
         samples: &[(usize, usize, [f64; 2])],
         global: ([f64; 2], [f64; 2]),
     ) -> LocalGrid {
-        let size = (TILE_STEPS * norm(global.0).max(norm(global.1))).max(1.0);
         // The extent of the detections that can be in a camera image (a coordinate that is not a
         // number, or absurd, falls in an edge tile).
         let sane = |v: f64| if (0.0..1e6).contains(&v) { v } else { 0.0 };
         let (xmax, ymax) = d.iter().fold((0f64, 0f64), |(x, y), p| {
             (x.max(sane(p.x)), y.max(sane(p.y)))
         });
+        // At most MAX_TILES a side, whatever the grid vectors (detections a pixel apart would
+        // otherwise ask for millions of tiles).
+        let size = (TILE_STEPS * norm(global.0).max(norm(global.1)))
+            .max(xmax.max(ymax) / MAX_TILES as f64)
+            .max(1.0);
         let mut grid = LocalGrid {
             size,
             cols: (xmax / size) as usize + 1,

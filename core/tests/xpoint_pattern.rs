@@ -1,13 +1,16 @@
 //! The X-point pattern: for seeded projectors, steps and seeds, any two distinct 3×3 windows
 //! differ in ≥ 3 symbols (Eq. 4.1), windows repeat only at the stated period, and every window
 //! of a period block is unique; the rendered image puts each primitive's saddle and long axis
-//! where `xpoint.toml` says, and nothing else is lit; bad requests and files are refused by
-//! name.
+//! where `xpoint.toml` says, and nothing else is lit; dense regions refine the grid where they
+//! are asked and nowhere else; bad requests and files are refused by name.
 
 use std::collections::HashMap;
 
 use ris_core::single_shot::code::{hamming, window, DISTANCE, PERIOD};
-use ris_core::single_shot::XPointPattern;
+use ris_core::single_shot::{DenseRegion, XPointPattern};
+
+mod common;
+use common::Rng;
 
 #[test]
 fn windows_keep_their_distance_and_repeat_only_at_the_period() {
@@ -167,4 +170,210 @@ fn impossible_requests_and_bad_files_are_refused_by_name() {
         err.contains("bad.toml") && err.contains("primitives.value"),
         "{err}"
     );
+}
+
+/// Seeded projectors, steps and regions: the columns whose gap lies inside a region's columns
+/// are its `dx` apart and the rest the pattern's (but the one gap that enters a region, which is
+/// shorter), likewise rows; every primitive is whole inside the image with the radius of the
+/// finest step; the code keeps its distance; the file states the regions and loads back; and
+/// the lattice maps each primitive's projector position to its own grid place and step.
+#[test]
+fn dense_regions_refine_the_grid_where_asked() {
+    let mut rng = Rng(41);
+    for case in 0..8u64 {
+        let (w, h) = if case % 2 == 0 {
+            (1024u32, 768u32)
+        } else {
+            (1920, 1080)
+        };
+        let step = [rng.range(13.0, 18.99) as u32, rng.range(13.0, 18.99) as u32];
+        let mut regions = Vec::new();
+        for _ in 0..1 + case as usize % 2 {
+            let (rw, rh) = (
+                rng.range(0.15, 0.4) * f64::from(w),
+                rng.range(0.15, 0.4) * f64::from(h),
+            );
+            let (x0, y0) = (
+                rng.range(0.0, f64::from(w) - rw),
+                rng.range(0.0, f64::from(h) - rh),
+            );
+            regions.push(DenseRegion {
+                x: [x0, x0 + rw],
+                y: [y0, y0 + rh],
+                step: [
+                    rng.range(8.0, f64::from(step[0]) - 2.0) as u32,
+                    rng.range(8.0, f64::from(step[1]) - 2.0) as u32,
+                ],
+            });
+        }
+        let p = XPointPattern::with_dense(w, h, step, &regions, 3, case + 1).expect("pattern");
+        let finest = p.finest_step();
+        let r = p.pattern.radius;
+        assert!(
+            (r - 0.38 * f64::from(finest[0].min(finest[1]))).abs() < 1e-9,
+            "case {case}: radius {r}"
+        );
+        let lattice = p.lattice();
+        let plain = XPointPattern::generate(w, h, step, 3, case + 1).expect("plain");
+        for (axis, at, size) in [(0, &lattice.columns, w), (1, &lattice.rows, h)] {
+            // Inside the image, whole.
+            assert!(
+                at[0] - r >= 0.0 && at[at.len() - 1] + r <= f64::from(size) - 1.0,
+                "case {case} axis {axis}"
+            );
+            let span = |g: &DenseRegion| if axis == 0 { g.x } else { g.y };
+            let mut fine_gaps = 0;
+            for pair in at.windows(2) {
+                let (a, b) = (pair[0], pair[1]);
+                let gap = b - a;
+                let fine = regions
+                    .iter()
+                    .filter(|g| a >= span(g)[0] && a < span(g)[1])
+                    .map(|g| f64::from(g.step[axis]))
+                    .reduce(f64::min);
+                let entering = regions.iter().any(|g| a < span(g)[0] && b >= span(g)[0]);
+                if let Some(fine) = fine {
+                    assert!(
+                        gap <= fine + 1e-9 && gap >= f64::from(finest[axis]) - 1e-9,
+                        "case {case} axis {axis}: gap {gap} at {a} inside a region of step {fine}"
+                    );
+                    fine_gaps += 1;
+                } else if entering {
+                    assert!(
+                        gap >= f64::from(finest[axis]) - 1e-9
+                            && gap <= f64::from(step[axis]) + 1e-9,
+                        "case {case} axis {axis}: gap {gap} entering a region"
+                    );
+                } else {
+                    assert!(
+                        (gap - f64::from(step[axis])).abs() < 1e-9,
+                        "case {case} axis {axis}: gap {gap} at {a} outside every region"
+                    );
+                }
+            }
+            // A region of n coarse steps holds about n · step / fine fine ones.
+            assert!(fine_gaps > 0, "case {case} axis {axis}: no fine gap");
+            let plain_n = if axis == 0 {
+                plain.grid()[0]
+            } else {
+                plain.grid()[1]
+            };
+            assert!(
+                at.len() > plain_n,
+                "case {case} axis {axis}: {} positions, {plain_n} without regions",
+                at.len()
+            );
+        }
+        // Every primitive whole inside the image, sized by its least gap to a grid neighbour.
+        let radii = p.radii();
+        for (k, &rk) in radii.iter().enumerate() {
+            let (u, v) = (p.primitives.u[k], p.primitives.v[k]);
+            assert!(
+                rk >= r - 1e-9 && rk <= 0.38 * f64::from(step[0].min(step[1])) + 1e-9,
+                "case {case}: radius {rk}"
+            );
+            assert!(
+                u - rk >= 0.0
+                    && v - rk >= 0.0
+                    && u + rk <= f64::from(w) - 1.0
+                    && v + rk <= f64::from(h) - 1.0,
+                "case {case}: primitive {k} cut by the image's edge"
+            );
+        }
+        // The code keeps its distance over the whole (larger) grid.
+        let [cols, rows] = p.grid();
+        let q = &p.primitives;
+        for j in (0..rows - 2).step_by(3) {
+            for i in (0..cols - 2).step_by(2) {
+                let a = window(&q.value, cols, i, j);
+                for (jj, ii) in [(j, i + 1), (j + 1, i), (j + 1, i + 1)] {
+                    if ii + 2 < cols && jj + 2 < rows {
+                        assert!(hamming(&a, &window(&q.value, cols, ii, jj)) >= DISTANCE);
+                    }
+                }
+            }
+        }
+        // The lattice finds every primitive at its own place, with the steps about it.
+        for k in (0..q.u.len()).step_by(7) {
+            let (gi, gj) = lattice.place(q.u[k], q.v[k]);
+            assert!((gi - f64::from(q.i[k])).abs() < 1e-9 && (gj - f64::from(q.j[k])).abs() < 1e-9);
+            let s = lattice.step_at(q.u[k] + 0.5, q.v[k] + 0.5);
+            assert!(s[0] >= f64::from(finest[0]) - 1e-9 && s[0] <= f64::from(step[0]) + 1e-9);
+            assert!(s[1] >= f64::from(finest[1]) - 1e-9 && s[1] <= f64::from(step[1]) + 1e-9);
+        }
+        // The file states the regions and loads back as it was.
+        let dir = tempfile::tempdir().expect("tmp");
+        let path = dir.path().join("xpoint.toml");
+        ris_core::io::write_toml(&path, &p).expect("write");
+        let text = std::fs::read_to_string(&path).expect("read");
+        assert!(
+            text.contains("[[pattern.dense]]"),
+            "case {case}: no dense table in the file"
+        );
+        assert_eq!(XPointPattern::load(&path).expect("load"), p);
+        eprintln!("case {case}: {w}x{h} step {step:?} regions {regions:?}: {cols}x{rows} grid (plain {:?})", plain.grid());
+    }
+}
+
+/// Regions that cannot refine the pattern, and files whose primitives do not lie on one grid of
+/// columns and rows, are refused by name.
+#[test]
+fn bad_dense_regions_and_off_grid_files_are_refused_by_name() {
+    let region = |x: [f64; 2], y: [f64; 2], step: [u32; 2]| DenseRegion { x, y, step };
+    for (r, want) in [
+        (
+            region([300.0, 200.0], [100.0, 300.0], [10, 10]),
+            "lower to a higher",
+        ),
+        (
+            region([100.0, 2000.0], [100.0, 300.0], [10, 10]),
+            "inside the 1024x768",
+        ),
+        (
+            region([100.0, 300.0], [f64::NAN, 300.0], [10, 10]),
+            "lower to a higher",
+        ),
+        (
+            region([100.0, 300.0], [100.0, 300.0], [6, 10]),
+            "dense region's steps",
+        ),
+        (
+            region([100.0, 300.0], [100.0, 300.0], [10, 20]),
+            "dense region's steps",
+        ),
+    ] {
+        let err = XPointPattern::with_dense(1024, 768, [14, 14], &[r], 3, 1)
+            .expect_err("bad region")
+            .to_string();
+        assert!(err.contains("dense[0]") && err.contains(want), "{err}");
+    }
+    let p = XPointPattern::with_dense(
+        640,
+        480,
+        [16, 16],
+        &[region([200.0, 400.0], [150.0, 300.0], [10, 10])],
+        3,
+        2,
+    )
+    .expect("pattern");
+    let dir = tempfile::tempdir().expect("tmp");
+    let path = dir.path().join("xpoint.toml");
+    let mut moved = p.clone();
+    let k = moved.grid()[0] + 3;
+    moved.primitives.u[k] += 2.0;
+    ris_core::io::write_toml(&path, &moved).expect("write");
+    let err = XPointPattern::load(&path)
+        .expect_err("off grid")
+        .to_string();
+    assert!(
+        err.contains("primitives") && err.contains(&format!("entry {k}")),
+        "{err}"
+    );
+    let mut bad = p.clone();
+    bad.pattern.dense[0].step = [30, 10];
+    ris_core::io::write_toml(&path, &bad).expect("write");
+    let err = XPointPattern::load(&path)
+        .expect_err("bad region")
+        .to_string();
+    assert!(err.contains("pattern.dense[0]"), "{err}");
 }

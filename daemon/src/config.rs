@@ -275,6 +275,9 @@ pub struct SingleShotSection {
     /// Frames per second a stream asks of each pair unless its request says otherwise.
     #[serde(default = "stream_rate")]
     pub rate_hz: f64,
+    /// Regions of each projector with a finer step (`[[single_shot.dense]]`).
+    #[serde(default)]
+    pub dense: Vec<ris_core::single_shot::DenseRegion>,
 }
 
 impl Default for SingleShotSection {
@@ -284,6 +287,7 @@ impl Default for SingleShotSection {
             seed: 0,
             range_mm: None,
             rate_hz: stream_rate(),
+            dense: Vec::new(),
         }
     }
 }
@@ -880,6 +884,10 @@ impl CellConfig {
                     ris_core::single_shot::MIN_STEP
                 ),
             ));
+        }
+        for (k, r) in single_shot.dense.iter().enumerate() {
+            r.check(None, single_shot.step)
+                .map_err(|why| field(&format!("single_shot.dense[{k}]"), why))?;
         }
         if let Some(why) = single_shot.range_mm.and_then(range_error) {
             return Err(field("single_shot.range_mm", why));

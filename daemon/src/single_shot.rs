@@ -46,26 +46,33 @@ impl PairSingleShot {
                 "sensor {sensor}: its reference recording has no row codes, which single-shot decoding needs"
             ));
         }
+        let pattern =
+            XPointPattern::with_dense(width, height, config.step, &config.dense, 3, config.seed)
+                .with_context(|| format!("sensor {sensor}: the X-point pattern"))?;
         // A step the camera cannot resolve gives empty clouds: refused here, with the reason,
-        // so health names it instead of scans returning nothing.
-        let spacing = single_shot::camera_spacing(&reference, config.step);
+        // so health names it instead of scans returning nothing. The finest step (a dense
+        // region's, if any) is the one the detector must resolve.
+        let finest = pattern.finest_step();
+        let spacing = single_shot::camera_spacing(&reference, finest);
         if let Some(spacing) = spacing {
             let least = spacing[0].min(spacing[1]);
             if least < single_shot::MIN_CAMERA_SPACING {
                 let scale = single_shot::MIN_CAMERA_SPACING / least;
+                let what = if config.dense.is_empty() {
+                    "[single_shot] step"
+                } else {
+                    "the finest step ([single_shot] step and dense regions)"
+                };
                 return Err(anyhow!(
-                    "sensor {sensor}: X-points {:.1} × {:.1} camera pixels apart at [single_shot] step {:?}; the detector needs {} or more: a step of at least [{}, {}]",
+                    "sensor {sensor}: X-points {:.1} × {:.1} camera pixels apart at {what} {finest:?}; the detector needs {} or more: a step of at least [{}, {}]",
                     spacing[0],
                     spacing[1],
-                    config.step,
                     single_shot::MIN_CAMERA_SPACING,
-                    (f64::from(config.step[0]) * scale).ceil(),
-                    (f64::from(config.step[1]) * scale).ceil()
+                    (f64::from(finest[0]) * scale).ceil(),
+                    (f64::from(finest[1]) * scale).ceil()
                 ));
             }
         }
-        let pattern = XPointPattern::generate(width, height, config.step, 3, config.seed)
-            .with_context(|| format!("sensor {sensor}: the X-point pattern"))?;
         let slide = Slide::picture(width, height, &pattern.render());
         Ok(PairSingleShot {
             pattern,

@@ -1310,6 +1310,10 @@ fn xpoint_pattern_is_written_with_a_file_that_states_every_primitive() {
         (vec!["--min-distance", "5"], "min_distance"),
         (vec!["--step", "14"], "--step"),
         (vec!["--rings"], "--rings and --xpoint"),
+        (vec!["--dense", "100,400,100"], "--dense"),
+        (vec!["--dense", "100,400,100,300,9.5,9"], "--dense"),
+        (vec!["--dense", "400,100,100,300,9,9"], "dense[0]"),
+        (vec!["--dense", "100,400,100,300,20,9"], "dense[0]"),
     ] {
         let mut a = vec!["patterns", "--xpoint", "--projector", "1024x768", "--out"];
         a.push(out.to_str().expect("utf8"));
@@ -1321,6 +1325,59 @@ fn xpoint_pattern_is_written_with_a_file_that_states_every_primitive() {
             stderr(&bad)
         );
     }
+}
+
+/// `--dense` regions: the file states them, the image is what the file redraws, and the grid
+/// is finer there (more primitives than without); `--dense` without `--xpoint` is refused.
+#[test]
+fn xpoint_pattern_takes_dense_regions() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("xp");
+    let o = ris(&[
+        "patterns",
+        "--xpoint",
+        "--projector",
+        "1024x768",
+        "--step",
+        "16,16",
+        "--dense",
+        "300,600,200,400,10,10",
+        "--dense",
+        "700,900,500,700,12,9",
+        "--out",
+        out.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let p = ris_core::single_shot::XPointPattern::load(&out.join("xpoint.toml")).expect("toml");
+    assert_eq!(p.pattern.dense.len(), 2);
+    assert_eq!(p.pattern.dense[1].step, [12, 9]);
+    assert_eq!(p.finest_step(), [10, 9]);
+    let img = ris_core::image::GrayImage::load(&out.join("xpoint.png")).expect("xpoint.png");
+    let drawn: Vec<f32> = p.render().into_iter().map(f32::from).collect();
+    assert_eq!(img.to_levels(), drawn);
+    let plain =
+        ris_core::single_shot::XPointPattern::generate(1024, 768, [16, 16], 3, 1).expect("plain");
+    let lattice = p.lattice();
+    let inside = lattice
+        .columns
+        .iter()
+        .filter(|&&u| (300.0..600.0).contains(&u))
+        .count();
+    assert!(
+        inside >= 29,
+        "{inside} columns across the 300 px of the first region"
+    );
+    assert!(p.primitives.u.len() > plain.primitives.u.len());
+    let bad = ris(&[
+        "patterns",
+        "--projector",
+        "1024x768",
+        "--dense",
+        "300,600,200,400,10,10",
+        "--out",
+        out.to_str().expect("utf8"),
+    ]);
+    assert!(!bad.status.success() && stderr(&bad).contains("--xpoint"));
 }
 
 #[test]

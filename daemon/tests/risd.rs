@@ -126,6 +126,14 @@ fn config_errors_name_the_field() {
             "part[0].tolerance",
         ),
         (&format!("{ok}[ros2]\ndomain_id = 300\n"), "ros2.domain_id"),
+        (
+            &format!("{ok}[[single_shot.dense]]\nx = [500.0, 100.0]\ny = [0.0, 100.0]\nstep = [10, 10]\n"),
+            "single_shot.dense[0]",
+        ),
+        (
+            &format!("{ok}[[single_shot.dense]]\nx = [0.0, 100.0]\ny = [0.0, 100.0]\nstep = [20, 10]\n"),
+            "single_shot.dense[0]",
+        ),
         (&format!("{ok}[ros2]\nenable = true\nnamespace = \"ris\"\n"), "ros2.namespace"),
         (&format!("{ok}[ros2]\nenable = true\nnode = \"r-d\"\n"), "ros2.node"),
         (&format!("{ok}[ros2]\nframe_id = \"a b\"\n"), "ros2.frame_id"),
@@ -348,6 +356,30 @@ fn a_pattern_finer_than_the_camera_resolves_is_refused_with_the_step_that_works(
     let (report, _) = scan(&config).expect("a step of 9 scans");
     let points = report.sensors.iter().map(|s| s.points).sum::<usize>();
     assert!(points > 3500, "{points} points at step [9, 9]");
+
+    // A dense region is refused the same way when its step is the one the camera cannot
+    // resolve, and scans with more points than the coarse pattern alone when it can.
+    config.single_shot.step = [14, 14];
+    let (report, _) = scan(&config).expect("a step of 14 scans");
+    let coarse = report.sensors.iter().map(|s| s.points).sum::<usize>();
+    let region = |step: u32| ris_core::single_shot::DenseRegion {
+        x: [300.0, 700.0],
+        y: [200.0, 550.0],
+        step: [step, step],
+    };
+    config.single_shot.dense = vec![region(8)];
+    let msg = format!("{:#}", scan(&config).expect_err("refused"));
+    assert!(
+        msg.contains("sensor s1") && msg.contains("finest step") && msg.contains("[8, 8]"),
+        "{msg}"
+    );
+    config.single_shot.dense = vec![region(10)];
+    let (report, _) = scan(&config).expect("a dense region of step 10 scans");
+    let dense = report.sensors.iter().map(|s| s.points).sum::<usize>();
+    assert!(
+        dense as f64 > 1.3 * coarse as f64,
+        "{dense} points with the dense region, {coarse} without"
+    );
 }
 
 /// A scan whose sensors measure nothing has nothing to inspect: it fails, naming each sensor

@@ -192,7 +192,13 @@ pub fn decode(
             .then(|| j as usize * cols + i as usize)
     };
     let step = pattern.pattern.step.map(f64::from);
+    let lattice = pattern.lattice();
     let index = SpatialIndex::new(detections);
+    // Each detection's projector point on the reference, where a prediction is given.
+    let predicted: Vec<Option<(f64, f64)>> = match predict {
+        Some(f) => detections.iter().map(|d| f(d.x, d.y)).collect(),
+        None => vec![None; n],
+    };
 
     // The grid as the camera sees it: the median vectors to the nearest neighbours that lie
     // nearer the image's rows (h) and columns (w), over the frame and about each detection.
@@ -208,7 +214,14 @@ pub fn decode(
     let neigh: Vec<[Option<usize>; 9]> = (0..n)
         .map(|k| {
             let (h, w) = grid_at(k);
-            neighbours(k, detections, &index, h, w)
+            neighbours(
+                k,
+                detections,
+                &index,
+                h,
+                w,
+                !pattern.pattern.dense.is_empty(),
+            )
         })
         .collect();
     let gap: Vec<bool> = (0..n)
@@ -218,9 +231,17 @@ pub fn decode(
         })
         .collect();
     stats.gaps = gap.iter().filter(|&&g| g).count();
+    // A symbol is read through the grid steps where it lies: the pattern's, or with dense
+    // regions those about its predicted place (the prediction is off by the parallax, so beside
+    // a region's border a symbol may be read through the other side's steps, and its window
+    // then finds no codeword or is refused by its neighbours).
     let values: Vec<Option<u8>> = (0..n)
         .map(|k| {
             let (h, w) = grid_at(k);
+            let step = match predicted[k] {
+                Some((u, v)) if !pattern.pattern.dense.is_empty() => lattice.step_at(u, v),
+                _ => step,
+            };
             (!gap[k])
                 .then(|| value(k, detections, &neigh[k], h, w, step))
                 .flatten()
@@ -230,7 +251,6 @@ pub fn decode(
 
     // The code: every window of the pattern by its symbols, with its centre's grid position.
     let code = CodeBook::new(&prims.value, cols, rows);
-    let origin = (prims.u[0], prims.v[0]);
 
     // Each detection's own placement from its codeword.
     let mut own: Vec<Option<(usize, usize)>> = vec![None; n];
@@ -261,9 +281,8 @@ pub fn decode(
         stats.matched += 1;
         let chosen = match (predict, places.len()) {
             (None, 1) => Some(places[0].1),
-            (Some(f), _) => f(detections[k].x, detections[k].y).and_then(|(u, v)| {
-                let gi = (u - origin.0) / step[0];
-                let gj = (v - origin.1) / step[1];
+            (Some(_), _) => predicted[k].and_then(|(u, v)| {
+                let (gi, gj) = lattice.place(u, v);
                 let mut best = places
                     .iter()
                     .map(|&(_, (i, j))| {
@@ -1009,10 +1028,15 @@ fn neighbours(
     index: &SpatialIndex,
     hg: [f64; 2],
     wg: [f64; 2],
+    varying: bool,
 ) -> [Option<usize>; 9] {
     let p = d[k];
     let tol = 0.35 * norm(hg).min(norm(wg));
-    let find = |v: [f64; 2], tol: f64| index.nearest(d, p.x + v[0], p.y + v[1], tol, k);
+    let find = |v: [f64; 2], tol: f64| {
+        index
+            .nearest(d, p.x + v[0], p.y + v[1], tol, k)
+            .or_else(|| varying.then(|| along(k, d, index, v)).flatten())
+    };
     let right = find(hg, tol);
     let left = find([-hg[0], -hg[1]], tol);
     let down = find(wg, tol);
@@ -1039,6 +1063,26 @@ fn neighbours(
         down,
         diag(1.0, 1.0),
     ]
+}
+
+/// Where the grid's step changes (a dense region's border): the nearest detection that reads
+/// like a corner ([`WHOLE_LEVEL`]) from detection `k` in the direction of grid vector `v`,
+/// 0.55–1.9 of it away and within 0.25 of its distance to either side.
+fn along(k: usize, d: &[Detection], index: &SpatialIndex, v: [f64; 2]) -> Option<usize> {
+    let p = d[k];
+    let len = norm(v).max(1e-9);
+    let (ux, uy) = (v[0] / len, v[1] / len);
+    index
+        .within(p.x, p.y, 1.9 * len)
+        .filter(|&m| m != k && d[m].level >= WHOLE_LEVEL)
+        .filter_map(|m| {
+            let (dx, dy) = (d[m].x - p.x, d[m].y - p.y);
+            let t = dx * ux + dy * uy;
+            let off = (-dx * uy + dy * ux).abs();
+            (t >= 0.55 * len && t <= 1.9 * len && off <= 0.25 * t).then_some((m, t))
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(m, _)| m)
 }
 
 /// The symbol of detection `k`: its axis mapped into the projector's grid frame through the

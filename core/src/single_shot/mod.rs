@@ -16,7 +16,7 @@ pub use decode::{
 };
 pub use detect::{detect, DetectParams, Detection, Detector, DISC_MARGIN, WHOLE_LEVEL};
 pub use fusion::{fuse, fuse_from, Fused, FusionRange};
-pub use pattern::{PatternSection, Primitives, XPointPattern, MIN_STEP};
+pub use pattern::{DenseRegion, Lattice, PatternSection, Primitives, XPointPattern, MIN_STEP};
 pub use reconstruct::{
     camera_spacing, decode_frame, measure, reconstruct, Measured, ReferencePrediction,
     MIN_CAMERA_SPACING,

@@ -260,6 +260,11 @@ enum Command {
         /// With --xpoint: Hamming distance every two distinct 3x3 windows keep (at most 3).
         #[arg(long, default_value_t = 3)]
         min_distance: u32,
+        /// With --xpoint: a region with a finer step, X0,X1,Y0,Y1,DX,DY (projector columns
+        /// X0…X1, rows Y0…Y1, steps DX,DY); repeat for more. The columns across X0…X1 and the
+        /// rows across Y0…Y1 take the finer steps.
+        #[arg(long)]
+        dense: Vec<String>,
         /// Output directory.
         #[arg(long)]
         out: PathBuf,
@@ -606,9 +611,14 @@ fn main() -> Result<()> {
             seed,
             step,
             min_distance,
+            dense,
             out,
         } => {
             let (width, height) = commands::parse_size(&projector)?;
+            anyhow::ensure!(
+                xpoint || dense.is_empty(),
+                "--dense refines the X-point pattern: it needs --xpoint"
+            );
             anyhow::ensure!(
                 !(rings && xpoint),
                 "--rings and --xpoint are different patterns: one at a time"
@@ -620,10 +630,15 @@ fn main() -> Result<()> {
                     .collect::<std::result::Result<_, _>>()
                     .map_err(|_| anyhow::anyhow!("--step {step:?}: expected DX,DY in pixels"))?;
                 anyhow::ensure!(step.len() == 2, "--step: expected DX,DY in pixels");
+                let dense = dense
+                    .iter()
+                    .map(|d| commands::patterns::parse_dense(d))
+                    .collect::<Result<Vec<_>>>()?;
                 let p = commands::patterns::xpoint(
                     width,
                     height,
                     [step[0], step[1]],
+                    &dense,
                     min_distance,
                     seed,
                     &out,

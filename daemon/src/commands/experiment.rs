@@ -311,7 +311,7 @@ pub fn motion(
     };
     let mut rows = Vec::new();
     let mut detector = single_shot::Detector::new(
-        single_shot::camera_spacing(&reference, xpoint.pattern.step).map_or_else(
+        single_shot::camera_spacing(&reference, xpoint.finest_step()).map_or_else(
             single_shot::DetectParams::default,
             single_shot::DetectParams::for_spacing,
         ),

@@ -6,6 +6,7 @@ use anyhow::{Context, Result};
 use rayon::prelude::*;
 use ris_core::image::GrayImage;
 use ris_core::pattern::{CodeLayout, Pattern};
+use ris_core::single_shot::{DenseRegion, XPointPattern};
 
 /// Write the sequence (and optionally the flats of the photo response) to `out`; returns the
 /// number of files written.
@@ -50,12 +51,12 @@ pub fn xpoint(
     width: u32,
     height: u32,
     step: [u32; 2],
+    dense: &[DenseRegion],
     min_distance: u32,
     seed: u64,
     out: &Path,
-) -> Result<ris_core::single_shot::XPointPattern> {
-    let pattern =
-        ris_core::single_shot::XPointPattern::generate(width, height, step, min_distance, seed)?;
+) -> Result<XPointPattern> {
+    let pattern = XPointPattern::with_dense(width, height, step, dense, min_distance, seed)?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let png = out.join("xpoint.png");
     GrayImage::from_u8(width, height, pattern.render())
@@ -65,4 +66,24 @@ pub fn xpoint(
         .with_context(|| format!("writing {}", out.join("xpoint.toml").display()))?;
     tracing::info!(primitives = pattern.primitives.u.len(), dir = %out.display(), "X-point pattern written");
     Ok(pattern)
+}
+
+/// A dense region from `--dense X0,X1,Y0,Y1,DX,DY` (projector pixels).
+pub fn parse_dense(text: &str) -> Result<DenseRegion> {
+    let bad =
+        || anyhow::anyhow!("--dense {text:?}: expected X0,X1,Y0,Y1,DX,DY in projector pixels");
+    let v: Vec<f64> = text
+        .split(',')
+        .map(|x| x.trim().parse::<f64>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| bad())?;
+    let whole = |x: f64| (x.fract() == 0.0 && (1.0..=512.0).contains(&x)).then_some(x as u32);
+    match v[..] {
+        [x0, x1, y0, y1, dx, dy] => Ok(DenseRegion {
+            x: [x0, x1],
+            y: [y0, y1],
+            step: [whole(dx).ok_or_else(bad)?, whole(dy).ok_or_else(bad)?],
+        }),
+        _ => Err(bad()),
+    }
 }

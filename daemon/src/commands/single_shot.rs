@@ -59,7 +59,7 @@ pub fn run(
             reference_dir.display()
         )
     })?;
-    let spacing = single_shot::camera_spacing(&reference, pattern.pattern.step);
+    let spacing = single_shot::camera_spacing(&reference, pattern.finest_step());
     if let Some(spacing) = spacing {
         if spacing[0].min(spacing[1]) < single_shot::MIN_CAMERA_SPACING {
             eprintln!(

@@ -325,7 +325,7 @@ pub fn open(s: &SensorConfig, single: &SingleShotSection, seed: u64) -> Result<P
             r.clone(),
             rec.clone(),
         )
-        .map(|x| Arc::new(OneShot::XPoint(x)))
+        .map(|x| Arc::new(OneShot::XPoint(Box::new(x))))
         .map_err(|e| format!("{e:#}")),
         _ => Err(format!(
             "sensor {}: single-shot decoding needs the pair's Gray-code reference recording; its sensor file has no [reference]",

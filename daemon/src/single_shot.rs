@@ -116,7 +116,7 @@ impl PairRings {
 /// How a pair measures from one frame.
 pub enum OneShot {
     /// The X-point pattern of a structured-light pair.
-    XPoint(PairSingleShot),
+    XPoint(Box<PairSingleShot>),
     /// The ring pattern of an omnidirectional sensor.
     Rings(Box<PairRings>),
 }

@@ -1380,6 +1380,100 @@ fn xpoint_pattern_takes_dense_regions() {
     assert!(!bad.status.success() && stderr(&bad).contains("--xpoint"));
 }
 
+/// The median and 98th percentile of each point's distance (mm) from the surface the camera
+/// sees at its pixel (the corner is within half a pixel of it, so on slopes the two differ by a
+/// little).
+fn error_quantiles(
+    cloud: &ris_core::cloud::PointCloud,
+    sim: &ris_core::sim::Simulator,
+) -> (f64, f64) {
+    let truth = &sim.cache.truth;
+    let mut err: Vec<f64> = cloud
+        .points
+        .iter()
+        .zip(&cloud.pixels)
+        .filter_map(|(p, &px)| {
+            let t = truth.xyz[px as usize];
+            t[0].is_finite().then(|| {
+                ((p[0] - t[0]).powi(2) + (p[1] - t[1]).powi(2) + (p[2] - t[2]).powi(2)).sqrt()
+                    as f64
+            })
+        })
+        .collect();
+    assert!(!err.is_empty(), "no point on the surface");
+    err.sort_by(f64::total_cmp);
+    let q = |f: f64| err[((err.len() - 1) as f64 * f) as usize];
+    (q(0.5), q(0.98))
+}
+
+/// `ris single-shot` on a pattern with a dense region: the camera's view of it (the
+/// simulator), decoded with the detector set for the finest step, gives more points than the
+/// same pattern without the region, as accurate.
+#[test]
+fn single_shot_reads_a_pattern_with_a_dense_region() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let scene_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenes/demo.toml");
+    let scene = ris_core::sim::Scene::load(&scene_path).expect("scene");
+    let sim = ris_core::sim::Simulator::new(scene);
+    let mut points = Vec::new();
+    for (name, dense) in [("plain", None), ("dense", Some("300,700,200,550,10,10"))] {
+        let xp = dir.path().join(format!("{name}-xp"));
+        let mut args = vec![
+            "patterns",
+            "--xpoint",
+            "--projector",
+            "1024x768",
+            "--out",
+            s(&xp),
+        ];
+        if let Some(d) = dense {
+            args.extend(["--dense", d]);
+        }
+        let o = ris(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let sim_dir = dir.path().join(format!("{name}-sim"));
+        let o = ris(&[
+            "simulate",
+            "--scene",
+            s(&scene_path),
+            "--out",
+            s(&sim_dir),
+            "--show",
+            s(&xp.join("xpoint.png")),
+        ]);
+        assert!(o.status.success(), "simulate: {}", stderr(&o));
+        let cloud_path = dir.path().join(format!("{name}.ply"));
+        let o = ris(&[
+            "single-shot",
+            "--sensor",
+            s(&sim_dir.join("sensor.toml")),
+            "--pattern",
+            s(&xp.join("xpoint.toml")),
+            s(&sim_dir.join("shown.png")),
+            "--out",
+            s(&cloud_path),
+        ]);
+        assert!(o.status.success(), "single-shot {name}: {}", stderr(&o));
+        let cloud = ris_core::cloud::PointCloud::read_ply(&cloud_path).expect("cloud");
+        let (median, q98) = error_quantiles(&cloud, &sim);
+        eprintln!(
+            "{name}: {} points, median {median:.2} mm, 98 % {q98:.2} mm",
+            cloud.len()
+        );
+        assert!(
+            median < 0.8 && q98 < 3.0,
+            "{name}: median {median:.2} mm, 98 % {q98:.2} mm"
+        );
+        points.push(cloud.len());
+    }
+    assert!(
+        points[1] as f64 > 1.3 * points[0] as f64,
+        "{} points with the dense region, {} without",
+        points[1],
+        points[0]
+    );
+}
+
 #[test]
 fn single_shot_reconstructs_one_image_of_the_x_point_pattern() {
     let dir = tempfile::tempdir().expect("tmp");
@@ -1469,28 +1563,10 @@ fn single_shot_reconstructs_one_image_of_the_x_point_pattern() {
         reddish > 1000 && bluish > 1000,
         "{reddish} red, {bluish} blue pixels"
     );
-    // Each point against the surface the camera sees at its pixel (the corner is within half a
-    // pixel of it, so on slopes the two differ by a little).
-    let truth = &sim.cache.truth;
-    let mut err: Vec<f64> = cloud
-        .points
-        .iter()
-        .zip(&cloud.pixels)
-        .filter_map(|(p, &px)| {
-            let t = truth.xyz[px as usize];
-            t[0].is_finite().then(|| {
-                ((p[0] - t[0]).powi(2) + (p[1] - t[1]).powi(2) + (p[2] - t[2]).powi(2)).sqrt()
-                    as f64
-            })
-        })
-        .collect();
-    err.sort_by(f64::total_cmp);
-    let q = |f: f64| err[((err.len() - 1) as f64 * f) as usize];
+    let (median, q98) = error_quantiles(&cloud, &sim);
     assert!(
-        q(0.5) < 0.8 && q(0.98) < 3.0,
-        "median {:.2} mm, 98 % {:.2} mm",
-        q(0.5),
-        q(0.98)
+        median < 0.8 && q98 < 3.0,
+        "median {median:.2} mm, 98 % {q98:.2} mm"
     );
     // A pattern for another projector is refused by name.
     let other = dir.path().join("other");

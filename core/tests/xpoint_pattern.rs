@@ -172,11 +172,12 @@ fn impossible_requests_and_bad_files_are_refused_by_name() {
     );
 }
 
-/// Seeded projectors, steps and regions: the columns whose gap lies inside a region's columns
-/// are its `dx` apart and the rest the pattern's (but the one gap that enters a region, which is
-/// shorter), likewise rows; every primitive is whole inside the image with the radius of the
-/// finest step; the code keeps its distance; the file states the regions and loads back; and
-/// the lattice maps each primitive's projector position to its own grid place and step.
+/// Seeded projectors, steps and regions: the columns whose gap starts inside a region's columns
+/// are its `dx` apart (or less where another region begins) and the rest the pattern's (but the
+/// one gap that enters a region, which is shorter), likewise rows; each primitive's radius is
+/// 0.38 of the least gap to its grid neighbours and it lies whole inside the image; the code
+/// keeps its distance; the file states the regions and loads back; and the lattice maps each
+/// primitive's projector position to its own grid place and step.
 #[test]
 fn dense_regions_refine_the_grid_where_asked() {
     let mut rng = Rng(41);
@@ -251,7 +252,7 @@ fn dense_regions_refine_the_grid_where_asked() {
                     );
                 }
             }
-            // A region of n coarse steps holds about n · step / fine fine ones.
+            // Every region is at least 15 % of the image wide: fine gaps, and more positions.
             assert!(fine_gaps > 0, "case {case} axis {axis}: no fine gap");
             let plain_n = if axis == 0 {
                 plain.grid()[0]
@@ -266,11 +267,24 @@ fn dense_regions_refine_the_grid_where_asked() {
         }
         // Every primitive whole inside the image, sized by its least gap to a grid neighbour.
         let radii = p.radii();
+        let cols = lattice.columns.len();
+        let least = |axis: &[f64], i: usize| {
+            let before = if i > 0 {
+                axis[i] - axis[i - 1]
+            } else {
+                f64::INFINITY
+            };
+            let after = axis.get(i + 1).map_or(f64::INFINITY, |a| a - axis[i]);
+            before.min(after)
+        };
         for (k, &rk) in radii.iter().enumerate() {
             let (u, v) = (p.primitives.u[k], p.primitives.v[k]);
+            let gap = least(&lattice.columns, k % cols).min(least(&lattice.rows, k / cols));
             assert!(
-                rk >= r - 1e-9 && rk <= 0.38 * f64::from(step[0].min(step[1])) + 1e-9,
-                "case {case}: radius {rk}"
+                (rk - 0.38 * gap).abs() < 1e-9
+                    && rk >= r - 1e-9
+                    && rk <= 0.38 * f64::from(step[0].min(step[1])) + 1e-9,
+                "case {case}: radius {rk} where the least gap is {gap}"
             );
             assert!(
                 u - rk >= 0.0

@@ -193,6 +193,8 @@ pub fn decode(
     };
     let step = pattern.pattern.step.map(f64::from);
     let lattice = pattern.lattice();
+    // Dense regions: the step changes across the view.
+    let varying = !pattern.pattern.dense.is_empty();
     let index = SpatialIndex::new(detections);
     // Each detection's projector point on the reference, where a prediction is given.
     let predicted: Vec<Option<(f64, f64)>> = match predict {
@@ -214,14 +216,7 @@ pub fn decode(
     let neigh: Vec<[Option<usize>; 9]> = (0..n)
         .map(|k| {
             let (h, w) = grid_at(k);
-            neighbours(
-                k,
-                detections,
-                &index,
-                h,
-                w,
-                !pattern.pattern.dense.is_empty(),
-            )
+            neighbours(k, detections, &index, h, w, varying)
         })
         .collect();
     let gap: Vec<bool> = (0..n)
@@ -239,7 +234,7 @@ pub fn decode(
         .map(|k| {
             let (h, w) = grid_at(k);
             let step = match predicted[k] {
-                Some((u, v)) if !pattern.pattern.dense.is_empty() => lattice.step_at(u, v),
+                Some((u, v)) if varying => lattice.step_at(u, v),
                 _ => step,
             };
             (!gap[k])

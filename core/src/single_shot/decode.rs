@@ -150,6 +150,20 @@ pub const REACH: f64 = 0.25;
 /// of the 212 right ones that met such a contradiction, 17 lay within 0.05.
 pub const EDGE_MARGIN: f64 = 0.05;
 
+/// How many placed neighbours must imply a corner's place for propagation to accept symbols
+/// that misfit it on one side of its window (a row or column of three) that none of them lies
+/// on. Beside an occluding edge the row beyond a corner is hidden and the neighbour search takes
+/// detections of the surface behind, whose symbols are another place's. On 48 held-out scenes
+/// of the independent renderer (families 9–12) this placed 197 more points (of families 11 and
+/// 12's visible primitives 98.08 → 98.20 %; 93.4 → 94.0 % on the scene whose misses lie beside
+/// edges), with 80 beyond 2 mm against 79 and 11 placed wrong against 12. With three such
+/// neighbours, and two places implied from two sides decided by the corner's own symbol, that
+/// scene reached 94.4 %, but 94 points lay beyond 2 mm and 18 were placed wrong.
+pub const SIDE_VOTES: usize = 4;
+
+/// The window's outer rows and columns as slot masks (top, bottom, left, right).
+const WINDOW_SIDES: [u16; 4] = [0b000_000_111, 0b111_000_000, 0b001_001_001, 0b100_100_100];
+
 /// Grid offsets of the 8 neighbours and the centre, row by row (window order).
 const OFFSETS: [(i32, i32); 9] = [
     (-1, -1),
@@ -344,6 +358,8 @@ pub fn decode(
                 continue;
             }
             let mut implied: Vec<(usize, usize)> = Vec::new();
+            // The window slots of the placed neighbours, bit per slot.
+            let mut implying = 0u16;
             for (c, nb) in neigh[m].iter().enumerate() {
                 if c == 4 {
                     continue;
@@ -351,6 +367,7 @@ pub fn decode(
                 let Some((qi, qj)) = nb.and_then(|q| placed[q]) else {
                     continue;
                 };
+                implying |= 1 << c;
                 let (a, b) = OFFSETS[c];
                 if let Some(idx) = at(qi as i64 - a as i64, qj as i64 - b as i64) {
                     implied.push((idx % cols, idx / cols));
@@ -367,8 +384,9 @@ pub fn decode(
             // The symbols read about it (its own and its neighbours') must be the code's there,
             // but for one where six or more were read: a neighbour skipped along a
             // foreshortened grid line implies a place one step off, where the partial window
-            // no longer fits.
-            let (mut known, mut misfits) = (0, 0);
+            // no longer fits. Or, where enough placed neighbours imply it (see [`SIDE_VOTES`]),
+            // but for those on one side of the window that none of them lies on.
+            let (mut known, mut misfits, mut misfit_slots) = (0, 0, 0u16);
             for (c, nb) in neigh[m].iter().enumerate() {
                 let Some(v) = nb.and_then(|q| values[q]) else {
                     continue;
@@ -379,9 +397,15 @@ pub fn decode(
                     .is_none_or(|i| prims.value[i] != v)
                 {
                     misfits += 1;
+                    misfit_slots |= 1 << c;
                 }
             }
-            let fits = misfits == 0 || (misfits == 1 && known >= 6);
+            let across_one_side = implied.len() >= SIDE_VOTES
+                && misfit_slots & (1 << 4) == 0
+                && WINDOW_SIDES
+                    .iter()
+                    .any(|&side| misfit_slots & !side == 0 && implying & side == 0);
+            let fits = misfits == 0 || (misfits == 1 && known >= 6) || across_one_side;
             if values[m].is_some() && fits && !taken[first.1 * cols + first.0] {
                 if lattice_residual(m, first, detections, &neigh, &placed, hg, wg) > OFF_GRID {
                     refused[m] = true;

@@ -12,7 +12,7 @@ mod reconstruct;
 pub use cut::{drop_kinked, CUT_INSIDE, CUT_INSIDE_MAX, CUT_SHIFT, KINK_INSIDE, KINK_STRAIGHT};
 pub use decode::{
     decode, Correspondence, DecodeStats, Predict, CUT_ASYMMETRY, CUT_ELONGATION, EDGE_MARGIN,
-    INNER_ASYMMETRY, INNER_OFF, MIN_SIDES, OFF_GRID, REACH,
+    INNER_ASYMMETRY, INNER_OFF, MIN_SIDES, OFF_GRID, REACH, SIDE_VOTES,
 };
 pub use detect::{detect, DetectParams, Detection, Detector, DISC_MARGIN, WHOLE_LEVEL};
 pub use fusion::{fuse, fuse_from, Fused, FusionRange};

@@ -1,6 +1,8 @@
 //! What the projector emits, as seen through its defocus: each projector pixel is a square of
 //! constant light blurred by a Gaussian of σ = `blur`, integrated exactly per pixel.
 
+use rayon::prelude::*;
+
 use crate::pattern::ProjectionMask;
 
 /// Samples of a 1-D blurred profile per projector pixel.
@@ -84,16 +86,19 @@ pub struct Light {
     mask: Option<std::sync::Arc<BlurredMask>>,
 }
 
-/// A projection mask blurred by the projector's defocus.
+/// A projection mask blurred by the projector's defocus (σ in projector pixels): computed once
+/// per mask and blur, then shared by every frame that shows the mask.
 #[derive(Clone, Debug)]
-struct BlurredMask {
+pub struct BlurredMask {
     width: usize,
     height: usize,
     values: Vec<f32>,
 }
 
 impl BlurredMask {
-    fn new(mask: &ProjectionMask, sigma: f32) -> BlurredMask {
+    /// `mask` blurred by a Gaussian of σ = `sigma`, integrated per pixel; 0 beyond the edges.
+    /// Separable, parallel over rows in both passes.
+    pub fn new(mask: &ProjectionMask, sigma: f32) -> BlurredMask {
         let (w, h) = (mask.width as usize, mask.height as usize);
         let radius = (3.0 * sigma).ceil() as isize;
         let kernel: Vec<f32> = if sigma <= 1e-6 {
@@ -104,25 +109,42 @@ impl BlurredMask {
                 .collect()
         };
         let r = (kernel.len() / 2) as isize;
-        let blur =
-            |src: &[f32], dst: &mut [f32], n: usize, stride: usize, lines: usize, step: usize| {
-                for l in 0..lines {
-                    for i in 0..n {
-                        let mut acc = 0.0;
-                        for (k, kv) in kernel.iter().enumerate() {
-                            let j = i as isize + k as isize - r;
-                            if j >= 0 && (j as usize) < n {
-                                acc += kv * src[l * step + j as usize * stride];
-                            }
-                        }
-                        dst[l * step + i * stride] = acc;
-                    }
-                }
-            };
         let mut tmp = vec![0.0; w * h];
         let mut out = vec![0.0; w * h];
-        blur(&mask.values, &mut tmp, w, 1, h, w);
-        blur(&tmp, &mut out, h, w, w, 1);
+        if w == 0 || h == 0 {
+            return BlurredMask {
+                width: w,
+                height: h,
+                values: out,
+            };
+        }
+        // Along each row.
+        tmp.par_chunks_mut(w)
+            .zip(mask.values.par_chunks(w))
+            .for_each(|(dst, src)| {
+                for (i, d) in dst.iter_mut().enumerate() {
+                    let mut acc = 0.0;
+                    for (k, kv) in kernel.iter().enumerate() {
+                        let j = i as isize + k as isize - r;
+                        if j >= 0 && (j as usize) < w {
+                            acc += kv * src[j as usize];
+                        }
+                    }
+                    *d = acc;
+                }
+            });
+        // Along each column, a whole output row at a time (the taps in the same order).
+        out.par_chunks_mut(w).enumerate().for_each(|(y, dst)| {
+            for (k, kv) in kernel.iter().enumerate() {
+                let j = y as isize + k as isize - r;
+                if j >= 0 && (j as usize) < h {
+                    let src = &tmp[j as usize * w..(j as usize + 1) * w];
+                    for (d, s) in dst.iter_mut().zip(src) {
+                        *d += kv * s;
+                    }
+                }
+            }
+        });
         BlurredMask {
             width: w,
             height: h,
@@ -172,8 +194,13 @@ impl Light {
     }
 
     /// This light multiplied by a projection mask, blurred by `blur` pixels.
-    pub fn masked(mut self, mask: &ProjectionMask, blur: f32) -> Light {
-        self.mask = Some(std::sync::Arc::new(BlurredMask::new(mask, blur)));
+    pub fn masked(self, mask: &ProjectionMask, blur: f32) -> Light {
+        self.with_mask(std::sync::Arc::new(BlurredMask::new(mask, blur)))
+    }
+
+    /// This light multiplied by an already blurred projection mask.
+    pub fn with_mask(mut self, mask: std::sync::Arc<BlurredMask>) -> Light {
+        self.mask = Some(mask);
         self
     }
 

@@ -12,7 +12,7 @@ mod session;
 mod shapes;
 mod texture;
 
-pub use light::Light;
+pub use light::{BlurredMask, Light};
 pub use render::{RenderCache, Truth};
 pub use scene::{
     CalibrationSection, MaterialSection, ObjectSection, RenderSection, Scene, SceneFile, SimCamera,
@@ -23,6 +23,7 @@ pub use shapes::{Object, Shape};
 pub use texture::Texture;
 
 use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, PoisonError};
 
 use crate::capture::CaptureSet;
 use crate::image::GrayImage;
@@ -37,13 +38,46 @@ pub struct Simulator {
     pub scene: Scene,
     /// Its render cache (and ground truth).
     pub cache: RenderCache,
+    /// The last projection mask shown, blurred at each σ a frame asked for: a scan shows one
+    /// mask under every pattern, and its blur costs more than the frame.
+    masks: Mutex<Option<MaskBlurs>>,
+}
+
+/// A projection mask and its blurred versions, by σ.
+struct MaskBlurs {
+    mask: ProjectionMask,
+    blurred: Vec<(f32, Arc<BlurredMask>)>,
 }
 
 impl Simulator {
     /// Ray-cast `scene` once.
     pub fn new(scene: Scene) -> Simulator {
         let cache = RenderCache::build(&scene);
-        Simulator { scene, cache }
+        Simulator {
+            scene,
+            cache,
+            masks: Mutex::new(None),
+        }
+    }
+
+    /// `mask` blurred by `sigma`, from the cache when the last mask shown was the same.
+    fn blurred_mask(&self, mask: &ProjectionMask, sigma: f32) -> Arc<BlurredMask> {
+        let mut cached = self.masks.lock().unwrap_or_else(PoisonError::into_inner);
+        if cached.as_ref().is_none_or(|c| c.mask != *mask) {
+            *cached = Some(MaskBlurs {
+                mask: mask.clone(),
+                blurred: Vec::new(),
+            });
+        }
+        let Some(c) = cached.as_mut() else {
+            return Arc::new(BlurredMask::new(mask, sigma));
+        };
+        if let Some((_, b)) = c.blurred.iter().find(|(s, _)| *s == sigma) {
+            return Arc::clone(b);
+        }
+        let b = Arc::new(BlurredMask::new(mask, sigma));
+        c.blurred.push((sigma, Arc::clone(&b)));
+        b
     }
 
     /// The projector's output for `pattern` under `layout`, through the scene's defocus.
@@ -101,7 +135,7 @@ impl Simulator {
             ^ frame.wrapping_mul(0x9E37_79B9_7F4A_7C15);
         let blur = s.blur as f32;
         let with_mask = |light: Light, sigma: f32| match mask {
-            Some(m) => light.masked(m, sigma),
+            Some(m) => light.with_mask(self.blurred_mask(m, sigma)),
             None => light,
         };
         let light = with_mask(self.light_blurred(layout, pattern, blur), blur);
@@ -242,4 +276,64 @@ pub fn write_truth(truth: &Truth, scene: &Scene, dir: &Path) -> Result<()> {
             materials: scene.materials.iter().map(|m| m.name.clone()).collect(),
         },
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A frame under a mask is the same whether its blur came from the cache or not, and a
+    /// changed mask is blurred anew.
+    #[test]
+    fn masked_frames_do_not_depend_on_the_masks_shown_before() {
+        let text = r#"
+[camera]
+width = 80
+height = 60
+k = [[178.0, 0.0, 39.5], [0.0, 178.0, 29.5], [0.0, 0.0, 1.0]]
+r = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]
+t = [0.0, 0.0, 1600.0]
+[projector]
+width = 128
+height = 96
+k = [[225.0, 0.0, 63.5], [0.0, 225.0, 47.5], [0.0, 0.0, 1.0]]
+r = [[0.954479978035, 0.0, -0.298274993136], [0.0, -1.0, 0.0], [-0.298274993136, 0.0, -0.954479978035]]
+t = [0.0, 0.0, 1676.305461424]
+[material.m]
+albedo = 0.6
+interreflection = 0.3
+interreflection_radius = 20.0
+[[object]]
+shape = "plane"
+material = "m"
+"#;
+        let file: SceneFile = toml::from_str(text).expect("toml");
+        let scene = Scene::from_file(file, Path::new("."), "test").expect("scene");
+        let layout = CodeLayout::new(128, 96);
+        let mask = |k: usize| ProjectionMask {
+            width: 128,
+            height: 96,
+            values: (0..128 * 96)
+                .map(|i| {
+                    if (i % 128) / 16 % 2 == k % 2 {
+                        1.0
+                    } else {
+                        0.25
+                    }
+                })
+                .collect(),
+        };
+        let (a, b) = (mask(0), mask(1));
+        let shown = Simulator::new(scene.clone());
+        let fresh = |m: &ProjectionMask, f: u64| {
+            Simulator::new(scene.clone()).frame_with(&layout, Pattern::White, Some(m), 1.0, f)
+        };
+        for (f, m) in [(1, &a), (2, &a), (3, &b), (4, &a)] {
+            let frame = shown.frame_with(&layout, Pattern::White, Some(m), 1.0, f);
+            assert!(frame == fresh(m, f), "frame {f}");
+        }
+        let one = shown.frame_with(&layout, Pattern::White, Some(&a), 1.0, 5);
+        let other = shown.frame_with(&layout, Pattern::White, Some(&b), 1.0, 5);
+        assert!(one != other, "the two masks light the plane alike");
+    }
 }

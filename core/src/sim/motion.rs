@@ -92,11 +92,13 @@ pub fn capture_at_frame_times(
 ) -> CaptureSet {
     let patterns = layout.sequence(scene.render.rows);
     let mut set = CaptureSet::new(*layout, scene.camera.width, scene.camera.height);
+    // Nothing moves: one ray cast serves every frame (the frames are those of `frame_at`).
+    let still = (!scene.moving()).then(|| Simulator::new(scene.at(0.0)));
     for (k, p) in patterns.iter().enumerate() {
         let t = k as f64 / timing.fps;
-        set.frames.insert(
-            *p,
-            frame_at(
+        let frame = match &still {
+            Some(sim) => sim.frame_with(layout, *p, None, 1.0, (seed + k as u64).wrapping_mul(31)),
+            None => frame_at(
                 scene,
                 layout,
                 *p,
@@ -105,7 +107,8 @@ pub fn capture_at_frame_times(
                 timing.exposure_s,
                 seed + k as u64,
             ),
-        );
+        };
+        set.frames.insert(*p, frame);
         progress(k + 1, patterns.len());
     }
     set.meta.insert(
@@ -195,6 +198,26 @@ velocity = [{}, {}, {}]
         assert_eq!(subframes(&s, 0.005), 1);
         assert_eq!(subframes(&scene([0.0, 200.0, 0.0]), 0.005), 4);
         assert_eq!(subframes(&scene([0.0, 1e5, 0.0]), 0.005), MAX_SUBFRAMES);
+    }
+
+    /// A still scene's sequence is rendered from one ray cast; its frames are those that
+    /// `frame_at` renders one by one.
+    #[test]
+    fn a_still_scene_renders_the_frames_of_frame_at() {
+        let s = scene([0.0; 3]);
+        assert!(!s.moving());
+        let layout = CodeLayout::new(s.projector.width, s.projector.height);
+        let timing = Timing {
+            fps: 60.0,
+            exposure_s: 0.005,
+        };
+        let set = capture_at_frame_times(&s, &layout, timing, 7, &|_, _| {});
+        let patterns = layout.sequence(s.render.rows);
+        assert_eq!(set.frames.len(), patterns.len());
+        for (k, p) in patterns.iter().enumerate() {
+            let one = frame_at(&s, &layout, *p, None, k as f64 / 60.0, 0.005, 7 + k as u64);
+            assert!(set.frames[p] == one, "frame {k} ({p:?}) differs");
+        }
     }
 
     #[test]

@@ -201,46 +201,114 @@ pub fn render_target(
     exposure: &Exposure,
     supersample: u32,
 ) -> GrayImage {
-    let (w, h) = (sensor.camera.lens.width, sensor.camera.lens.height);
-    let (pw, ph) = (
-        sensor.projector.lens.width as usize,
-        sensor.projector.lens.height as usize,
-    );
-    let n = supersample.max(1);
-    let pixels: Vec<u8> = (0..w * h)
-        .into_par_iter()
-        .map(|i| {
-            let (u, v) = (i % w, i / w);
-            let mut sum = 0.0;
-            for k in 0..n * n {
+    TargetView::new(sensor, pos, markers, supersample).render(picture, exposure)
+}
+
+/// What one position sees of the target, ray by ray: each sub-sample's albedo and the
+/// projector pixel that lights it, with the cosine of its light. All of a frame but the
+/// picture shown, so the frames of a session share one tracing of the rays through the mirrors.
+struct TargetView {
+    width: u32,
+    height: u32,
+    /// Sub-samples per pixel.
+    per_pixel: usize,
+    samples: Vec<TargetSample>,
+}
+
+/// One ray of a [`TargetView`].
+#[derive(Clone, Copy)]
+struct TargetSample {
+    /// Albedo where the ray meets the target; NaN where it misses.
+    albedo: f64,
+    /// The projector pixel (row-major index) lighting the point; `usize::MAX` where none does.
+    projector: usize,
+    /// Cosine between the target's normal and the way to the projector's mirror.
+    cos: f64,
+}
+
+impl TargetView {
+    /// Trace `supersample`² rays across each camera pixel (1: its centre).
+    fn new(
+        sensor: &OmniSensor,
+        pos: &Position,
+        markers: &MarkerSection,
+        supersample: u32,
+    ) -> TargetView {
+        let (w, h) = (sensor.camera.lens.width, sensor.camera.lens.height);
+        let (pw, ph) = (
+            sensor.projector.lens.width as usize,
+            sensor.projector.lens.height as usize,
+        );
+        let n = supersample.max(1);
+        let missed = TargetSample {
+            albedo: f64::NAN,
+            projector: usize::MAX,
+            cos: 0.0,
+        };
+        let samples: Vec<TargetSample> = (0..w * h * n * n)
+            .into_par_iter()
+            .map(|s| {
+                let (i, k) = (s / (n * n), s % (n * n));
+                let (u, v) = (i % w, i / w);
                 let du = (f64::from(k % n) + 0.5) / f64::from(n) - 0.5;
                 let dv = (f64::from(k / n) + 0.5) / f64::from(n) - 0.5;
                 let Some(ray) = sensor
                     .camera
                     .back_project(f64::from(u) + du, f64::from(v) + dv)
                 else {
-                    continue;
+                    return missed;
                 };
                 let Some((phi, z, p)) = pos.hit(&ray) else {
-                    continue;
+                    return missed;
                 };
-                let mut light = exposure.ambient;
+                let mut sample = TargetSample {
+                    albedo: pos.albedo(markers, phi, z),
+                    ..missed
+                };
                 if let Some(((pu, pv), mirror)) = sensor.projector.project(&p) {
                     let (x, y) = (pu.round() as usize, pv.round() as usize);
                     if x < pw && y < ph {
                         let normal =
                             Vec3::new(pos.center[0] - p.x, pos.center[1] - p.y, 0.0).normalize();
                         let to = (mirror - p).normalize();
-                        light += f64::from(picture[y * pw + x]) / 255.0 * normal.dot(&to).max(0.0);
+                        sample.projector = y * pw + x;
+                        sample.cos = normal.dot(&to).max(0.0);
                     }
                 }
-                sum += exposure.gain * pos.albedo(markers, phi, z) * light;
-            }
-            let noise = exposure.noise * gaussian(exposure.seed, u64::from(i));
-            (sum / f64::from(n * n) + noise).round().clamp(0.0, 255.0) as u8
-        })
-        .collect();
-    GrayImage::from_u8(w, h, pixels)
+                sample
+            })
+            .collect();
+        TargetView {
+            width: w,
+            height: h,
+            per_pixel: (n * n) as usize,
+            samples,
+        }
+    }
+
+    /// The camera frame of the projector showing `picture`.
+    fn render(&self, picture: &[u8], exposure: &Exposure) -> GrayImage {
+        let pixels: Vec<u8> = self
+            .samples
+            .par_chunks(self.per_pixel)
+            .enumerate()
+            .map(|(i, rays)| {
+                let mut sum = 0.0;
+                for r in rays.iter().filter(|r| !r.albedo.is_nan()) {
+                    let mut light = exposure.ambient;
+                    if let Some(&level) = picture.get(r.projector) {
+                        light += f64::from(level) / 255.0 * r.cos;
+                    }
+                    sum += exposure.gain * r.albedo * light;
+                }
+                let noise = exposure.noise * gaussian(exposure.seed, i as u64);
+                (sum / self.per_pixel as f64 + noise)
+                    .round()
+                    .clamp(0.0, 255.0) as u8
+            })
+            .collect();
+        GrayImage::from_u8(self.width, self.height, pixels)
+    }
 }
 
 /// Write a simulated session into `dir`: `session.toml`, the nominal sensor (`sensor.toml`, a
@@ -264,12 +332,13 @@ pub fn simulate_session(
     for (k, pos) in session.position.iter().enumerate() {
         let at = dir.join(&pos.name);
         std::fs::create_dir_all(&at).map_err(|e| Error::io(&at, e))?;
+        let view = TargetView::new(truth, pos, &session.markers, 2);
         let lit = |picture: &[u8], n: u64| {
             let e = Exposure {
                 seed: exposure.seed.wrapping_add(1000 * k as u64 + n),
                 ..*exposure
             };
-            render_target(truth, pos, &session.markers, picture, &e, 2)
+            view.render(picture, &e)
         };
         // The dots are imaged under the room's lights (the projector dark), so the whole
         // target is seen, not only what the projector reaches.

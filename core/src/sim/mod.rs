@@ -63,15 +63,13 @@ impl Simulator {
     /// `mask` blurred by `sigma`, from the cache when the last mask shown was the same.
     fn blurred_mask(&self, mask: &ProjectionMask, sigma: f32) -> Arc<BlurredMask> {
         let mut cached = self.masks.lock().unwrap_or_else(PoisonError::into_inner);
-        if cached.as_ref().is_none_or(|c| c.mask != *mask) {
-            *cached = Some(MaskBlurs {
-                mask: mask.clone(),
-                blurred: Vec::new(),
-            });
+        if cached.as_ref().is_some_and(|c| c.mask != *mask) {
+            *cached = None;
         }
-        let Some(c) = cached.as_mut() else {
-            return Arc::new(BlurredMask::new(mask, sigma));
-        };
+        let c = cached.get_or_insert_with(|| MaskBlurs {
+            mask: mask.clone(),
+            blurred: Vec::new(),
+        });
         if let Some((_, b)) = c.blurred.iter().find(|(s, _)| *s == sigma) {
             return Arc::clone(b);
         }

@@ -1553,6 +1553,28 @@ mod tests {
         );
     }
 
+    /// Decode `seen` (the pattern seen 1:1, so each corner's truth is its own position) and
+    /// assert that no corner is placed more than 1 px off its primitive.
+    fn decode_none_off(
+        seen: &[Detection],
+        pattern: &XPointPattern,
+        seed: u64,
+    ) -> Vec<Correspondence> {
+        let identity = |x: f64, y: f64| Some((x, y));
+        let (matches, stats) = decode(seen, pattern, Some(&identity));
+        for m in &matches {
+            assert!(
+                (m.u - m.x).hypot(m.v - m.y) < 1.0,
+                "seed {seed}: corner ({:.1}, {:.1}) placed at ({:.1}, {:.1}), {stats:?}",
+                m.x,
+                m.y,
+                m.u,
+                m.v
+            );
+        }
+        matches
+    }
+
     /// Bands of detections that show another place's symbols (the surface behind an occluding
     /// edge, seen where a hidden row's primitives were): the corners beside a band read one side
     /// of their window wrong, so only propagation can place them, and only by
@@ -1597,18 +1619,7 @@ mod tests {
                     }
                 })
                 .collect();
-            let identity = |x: f64, y: f64| Some((x, y));
-            let (matches, stats) = decode(&seen, &pattern, Some(&identity));
-            for m in &matches {
-                assert!(
-                    (m.u - m.x).hypot(m.v - m.y) < 1.0,
-                    "seed {seed}: corner ({:.1}, {:.1}) placed at ({:.1}, {:.1}), {stats:?}",
-                    m.x,
-                    m.y,
-                    m.u,
-                    m.v
-                );
-            }
+            let matches = decode_none_off(&seen, &pattern, seed);
             for i in c0..c0 + w {
                 for j in [r0 - 1, r0 + h] {
                     beside += 1;
@@ -1696,18 +1707,7 @@ mod tests {
                     }
                 }
             }
-            let identity = |x: f64, y: f64| Some((x, y));
-            let (matches, stats) = decode(&seen, &pattern, Some(&identity));
-            for m in &matches {
-                assert!(
-                    (m.u - m.x).hypot(m.v - m.y) < 1.0,
-                    "seed {seed}: corner ({:.1}, {:.1}) placed at ({:.1}, {:.1}), {stats:?}",
-                    m.x,
-                    m.y,
-                    m.u,
-                    m.v
-                );
-            }
+            let matches = decode_none_off(&seen, &pattern, seed);
             made += corners.len();
             placed += corners
                 .iter()

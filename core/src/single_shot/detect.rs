@@ -57,14 +57,16 @@ pub struct DetectParams {
     pub max_asymmetry: f64,
 }
 
-/// The default disc is 3.7 px about the corner (the blur 0.89 px scaled with it): the largest
-/// [`DetectParams::for_spacing`] leaves at the finest spacing it resolves, and kept at coarser
-/// spacings too. A larger disc is cut more often by an edge or a shadow, takes in more surface
-/// texture, and reaches into the neighbours' light where a tilted face packs the grid. On the
-/// 48 independent scenes of families 9–12 (steps 12–16), a disc of 5 px decoded 98.23 % of the
-/// primitives in view with 0.081 % of the points beyond 2 mm; on family 12 alone, 5 px gave
-/// 98.44 % and 0.083 %, 4.2 px 98.77 and 0.075 %, 3.5 px 98.68 and 0.050 %, 3.0 px 98.45 and
-/// 0.029 %, 2.5 px 95.6 % (too few pixels for the saddle under noise).
+/// The default disc is 3.7 px about the corner (the blur 0.888 px scaled with it), kept at every
+/// spacing from about 8.9 px up; [`DetectParams::for_spacing`] shrinks it below that, as before
+/// (at 8.8 px a cap of 3.5 px cost the dense-region test 4 points). A larger disc is cut more
+/// often by an edge or a shadow, takes in more surface texture, and reaches into the
+/// neighbours' light where a tilted face packs the grid. On the 48 independent scenes of
+/// families 9–12 (steps 12–16), 5 px decoded 98.23 % of the primitives in view with 0.081 % of
+/// the points beyond 2 mm, 3.7 px 98.39 % and 0.045 %; on family 12 alone, 5 px gave 98.44 %
+/// and 0.083 %, 4.2 px 98.77 and 0.075 %, 3.5 px 98.68 and 0.050 %, 3.0 px 98.45 and 0.029 %,
+/// 2.5 px 95.6 % (too few pixels for the saddle under noise). Strongly textured surfaces
+/// (20–30 % albedo texture) decode less with it: 5 of 12 such scenes lost 3–9 points.
 impl Default for DetectParams {
     fn default() -> Self {
         DetectParams {

@@ -26,6 +26,7 @@ pub mod sensor;
 pub mod sim;
 pub mod single_shot;
 pub mod spatial;
+pub mod verify;
 
 /// The seeded generator the integration tests use, for the unit tests' families of cases.
 #[cfg(test)]

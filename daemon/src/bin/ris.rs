@@ -525,6 +525,26 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Acceptance test or re-verification by VDI/VDE 2634-2 (ISO 10360-13): PF, PS, SD and F
+    /// from clouds of calibrated artefacts against the MPE (exit status 3 when a figure fails,
+    /// 4 when an artefact was not measured).
+    Verify {
+        /// The artefacts file: [ball_bar], [sphere], [plane], [mpe] and optionally [volume].
+        #[arg(long)]
+        artefacts: PathBuf,
+        /// Clouds (PLY or E57) of the ball bar, one position each.
+        #[arg(long = "ball-bar", num_args = 1..)]
+        ball_bar: Vec<PathBuf>,
+        /// Clouds of the flat, one position each.
+        #[arg(long, num_args = 1..)]
+        plane: Vec<PathBuf>,
+        /// Clouds of the probing sphere, one position each.
+        #[arg(long, num_args = 1..)]
+        sphere: Vec<PathBuf>,
+        /// Output directory (verify.json, verify.html, residual maps); must not exist or be empty.
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Experiments on simulated scenes.
     #[command(subcommand)]
     Experiment(ExperimentCommand),
@@ -1028,6 +1048,28 @@ fn main() -> Result<()> {
             )?;
             if let Some(code) = verdict_exit_code(&report.verdict) {
                 std::process::exit(code);
+            }
+        }
+        Command::Verify {
+            artefacts,
+            ball_bar,
+            plane,
+            sphere,
+            out,
+        } => {
+            let cert = commands::verify::run(
+                &artefacts,
+                &commands::verify::Clouds {
+                    ball_bar,
+                    plane,
+                    sphere,
+                },
+                &out,
+            )?;
+            match cert.verdict {
+                ris_core::verify::Status::Pass => {}
+                ris_core::verify::Status::Fail => std::process::exit(3),
+                ris_core::verify::Status::NotMeasured => std::process::exit(4),
             }
         }
         Command::Experiment(ExperimentCommand::Motion {

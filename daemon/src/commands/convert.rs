@@ -27,14 +27,19 @@ fn format_of(path: &Path) -> Result<Format> {
     }
 }
 
-/// Read `input` and write it as `output`; returns the cloud.
-pub fn run(input: &Path, output: &Path) -> Result<PointCloud> {
-    let (from, to) = (format_of(input)?, format_of(output)?);
-    let cloud = match from {
+/// Read a cloud from PLY or E57, by the file's extension.
+pub fn read(input: &Path) -> Result<PointCloud> {
+    match format_of(input)? {
         Format::Ply => PointCloud::read_ply(input),
         Format::E57 => PointCloud::read_e57(input),
     }
-    .with_context(|| format!("reading {}", input.display()))?;
+    .with_context(|| format!("reading {}", input.display()))
+}
+
+/// Read `input` and write it as `output`; returns the cloud.
+pub fn run(input: &Path, output: &Path) -> Result<PointCloud> {
+    let to = format_of(output)?;
+    let cloud = read(input)?;
     match to {
         Format::Ply => cloud.write_ply(output),
         Format::E57 => cloud.write_e57(output),

@@ -19,6 +19,7 @@ pub mod scan;
 pub mod simulate;
 pub mod single_shot;
 pub mod stream;
+pub mod verify;
 #[cfg(all(feature = "aravis", feature = "projector"))]
 pub mod virtual_cell;
 

@@ -2180,3 +2180,133 @@ fn omni_decodes_rooms_rendered_by_an_independent_renderer() {
         assert!(far < 0.06, "room {n}: {:.3} beyond 300 mm", far);
     }
 }
+
+/// Write the artefact clouds of `set` as PLY (and the first sphere as E57) under `dir`.
+fn write_clouds(dir: &Path, set: &[ris_core::verify::MeasuredCloud]) -> Vec<String> {
+    set.iter()
+        .enumerate()
+        .map(|(i, c)| {
+            let mut name = c.name.clone();
+            if i == 0 && name.starts_with("sphere") {
+                name = name.replace(".ply", ".e57");
+            }
+            let path = dir.join(&name);
+            let cloud = ris_core::cloud::PointCloud {
+                points: c
+                    .points
+                    .iter()
+                    .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+                    .collect(),
+                confidence: vec![1.0; c.points.len()],
+                ..Default::default()
+            };
+            if name.ends_with(".e57") {
+                cloud.write_e57(&path).expect("write e57");
+            } else {
+                cloud.write_ply(&path).expect("write ply");
+            }
+            s(&path).to_string()
+        })
+        .collect()
+}
+
+#[test]
+fn verify_certifies_an_acceptance_set_and_refuses_bad_input() {
+    use ris_core::verify::synthetic::acceptance_set;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let artefacts = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../config/verify/artefacts.toml"
+    );
+    let verify = |bars: &[String], planes: &[String], spheres: &[String], out: &Path| {
+        let mut args: Vec<&str> = vec!["verify", "--artefacts", artefacts, "--out", s(out)];
+        args.push("--ball-bar");
+        args.extend(bars.iter().map(String::as_str));
+        args.push("--plane");
+        args.extend(planes.iter().map(String::as_str));
+        args.push("--sphere");
+        args.extend(spheres.iter().map(String::as_str));
+        ris(&args)
+    };
+    let (bars, planes, spheres) = acceptance_set(41, 0.008, 1.0);
+    let (b, p, sp) = (
+        write_clouds(dir.path(), &bars),
+        write_clouds(dir.path(), &planes),
+        write_clouds(dir.path(), &spheres),
+    );
+    let out = dir.path().join("verify");
+    let o = verify(&b, &p, &sp, &out);
+    let stdout = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(o.status.success(), "{}\n{}", stdout, stderr(&o));
+    assert!(stdout.contains("verification: PASS") && stdout.contains("acceptance test"));
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("verify.json")).expect("json"))
+            .expect("parse");
+    assert_eq!(json["verdict"], "pass");
+    assert_eq!(json["sphere_spacing"].as_array().map(Vec::len), Some(7));
+    assert_eq!(json["flatness"].as_array().map(Vec::len), Some(6));
+    assert_eq!(json["probing_size"].as_array().map(Vec::len), Some(10));
+    assert_eq!(json["probing_size"][0]["cloud"], "sphere-1.e57", "E57 read");
+    for f in json["probing_size"].as_array().expect("array") {
+        // The clouds are stored as float32: a 40 mm sphere keeps its size within 5 µm.
+        let e = f["error"].as_f64().expect("PS");
+        assert!(e.abs() < 0.005, "PS {e} of {}", f["cloud"]);
+    }
+    let html = std::fs::read_to_string(out.join("verify.html")).expect("html");
+    assert!(html.contains("PASS") && html.contains("bar-7-a.png"));
+    let map = image::open(out.join("flat-1.png")).expect("residual map decodes");
+    assert!(map.width() > 100);
+    // An existing output is not overwritten.
+    let o = verify(&b, &p, &sp, &out);
+    assert!(
+        !o.status.success() && stderr(&o).contains("not empty"),
+        "{}",
+        stderr(&o)
+    );
+    // The same set measured 0.05 % large fails SD: exit status 3.
+    let scaled = tempfile::tempdir().expect("tempdir");
+    let (bars, _, _) = acceptance_set(41, 0.008, 1.0005);
+    let b2 = write_clouds(scaled.path(), &bars);
+    let o = verify(&b2, &p, &sp, &scaled.path().join("out"));
+    assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
+    // A bad artefacts file names the file and field, and writes nothing.
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(
+        &bad,
+        std::fs::read_to_string(artefacts)
+            .expect("read")
+            .replace("diameter = 40.0", "diameter = -40.0"),
+    )
+    .expect("write");
+    let bad_out = dir.path().join("bad-out");
+    let o = ris(&[
+        "verify",
+        "--artefacts",
+        s(&bad),
+        "--out",
+        s(&bad_out),
+        "--sphere",
+        &sp[1],
+    ]);
+    let e = stderr(&o);
+    assert!(
+        !o.status.success() && e.contains("bad.toml") && e.contains("sphere.diameter"),
+        "{e}"
+    );
+    assert!(!bad_out.exists());
+    // A cloud that is not a cloud.
+    let junk = dir.path().join("junk.ply");
+    std::fs::write(&junk, b"ply\nformat nonsense\n").expect("write");
+    let o = ris(&[
+        "verify",
+        "--artefacts",
+        artefacts,
+        "--out",
+        s(&bad_out),
+        "--sphere",
+        s(&junk),
+    ]);
+    let e = stderr(&o);
+    assert!(!o.status.success() && e.contains("junk.ply"), "{e}");
+    assert!(!bad_out.exists());
+}

@@ -184,14 +184,18 @@ pub(crate) fn spheres(
         .collect();
     hyps.sort_by(|a, b| b.0.cmp(&a.0));
     let mut found: Vec<FoundSphere> = Vec::new();
+    // Hypotheses near one already refined (kept or not) would refine to the same place.
+    let mut tried: Vec<Vec3> = Vec::new();
     for (count, c) in hyps {
         if found.len() >= max || count < min_points / 2 {
             break;
         }
-        if found.iter().any(|f| (f.fit.centre - c).norm() < radius) {
+        if tried.iter().any(|t| (t - c).norm() < 0.5 * radius) {
             continue;
         }
+        tried.push(c);
         if let Some(f) = refine_sphere(s, &grid, c, radius, band) {
+            tried.push(f.fit.centre);
             if (f.fit.radius - radius).abs() <= radius_tolerance * radius
                 && !found
                     .iter()

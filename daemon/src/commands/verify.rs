@@ -81,6 +81,7 @@ pub fn run(artefacts: &Path, clouds: &Clouds, out: &Path) -> Result<Certificate>
     let json = serde_json::to_vec_pretty(&cert).context("encoding verify.json")?;
     let html = certificate_html(&cert);
     ris_core::io::write_dir_atomically(out, |dir| {
+        ris_core::io::create_dir(dir)?;
         for m in &maps {
             write_residual_map(dir, m)?;
         }

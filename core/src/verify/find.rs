@@ -182,7 +182,7 @@ pub(crate) fn spheres(
         })
         .flatten()
         .collect();
-    hyps.sort_by(|a, b| b.0.cmp(&a.0));
+    hyps.sort_by_key(|h| std::cmp::Reverse(h.0));
     let mut found: Vec<FoundSphere> = Vec::new();
     // Hypotheses near one already refined (kept or not) would refine to the same place.
     let mut tried: Vec<Vec3> = Vec::new();
@@ -205,7 +205,7 @@ pub(crate) fn spheres(
             }
         }
     }
-    found.sort_by(|a, b| b.inliers.len().cmp(&a.inliers.len()));
+    found.sort_by_key(|f| std::cmp::Reverse(f.inliers.len()));
     found
 }
 

@@ -11,15 +11,43 @@ use super::fit::{fit_plane, fit_sphere, PlaneFit, SphereFit};
 use crate::geometry::{Mat3, Vec3};
 use crate::spatial::KdTree;
 
+/// A multiplicative hash of small integer cell keys (SipHash, the default, spent a tenth of
+/// a verification hashing cell keys).
+#[derive(Clone, Copy, Default)]
+pub(crate) struct CellHasher(u64);
+
+impl std::hash::Hasher for CellHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.write_u64(u64::from(b));
+        }
+    }
+    fn write_i32(&mut self, v: i32) {
+        self.write_u64(u64::from(v as u32));
+    }
+    fn write_i64(&mut self, v: i64) {
+        self.write_u64(v as u64);
+    }
+    fn write_u64(&mut self, v: u64) {
+        self.0 = (self.0.rotate_left(5) ^ v).wrapping_mul(0x517c_c1b7_2722_0a95);
+    }
+}
+
+type CellMap<K, V> = HashMap<K, V, std::hash::BuildHasherDefault<CellHasher>>;
+type CellSet<K> = HashSet<K, std::hash::BuildHasherDefault<CellHasher>>;
+
 /// A uniform hash grid over a cloud, for the points within a distance of a place.
 pub(crate) struct Grid {
     cell: f64,
-    cells: HashMap<[i32; 3], Vec<u32>>,
+    cells: CellMap<[i32; 3], Vec<u32>>,
 }
 
 impl Grid {
     pub fn new(points: &[Vec3], cell: f64) -> Grid {
-        let mut cells: HashMap<[i32; 3], Vec<u32>> = HashMap::new();
+        let mut cells: CellMap<[i32; 3], Vec<u32>> = CellMap::default();
         for (i, p) in points.iter().enumerate() {
             cells.entry(key(p, cell)).or_default().push(i as u32);
         }
@@ -55,7 +83,7 @@ pub(crate) struct Searchable<'a> {
     pub spacing: f64,
 }
 
-const NORMAL_NEIGHBOURS: usize = 24;
+const NORMAL_NEIGHBOURS: usize = 16;
 
 /// Largest angle between a point's local normal and its artefact's normal there, degrees.
 const NORMAL_AGREEMENT_DEG: f64 = 30.0;
@@ -351,9 +379,9 @@ fn describe_plane(
             (d.dot(&v) / cell).floor() as i64,
         )
     };
-    let footprint: HashSet<(i64, i64)> = pts.iter().map(uv).collect();
+    let footprint: CellSet<(i64, i64)> = pts.iter().map(uv).collect();
     // Every point over the footprint within a loose band: the 3D cells about the region.
-    let mut cells: HashSet<[i32; 3]> = HashSet::new();
+    let mut cells: CellSet<[i32; 3]> = CellSet::default();
     for p in &pts {
         let k = key(p, grid.cell);
         for dx in -1..=1 {
@@ -375,7 +403,16 @@ fn describe_plane(
         }
     }
     inliers.sort_unstable();
-    let inliers = s.with_normals_like(&inliers, |_| fit.normal, NORMAL_AGREEMENT_DEG);
+    // Side faces can only come in at the footprint's border: check the normals there alone.
+    let interior = |q: &Vec3| {
+        let (a, b) = uv(q);
+        (-1..=1).all(|da| (-1..=1).all(|db| footprint.contains(&(a + da, b + db))))
+    };
+    let (inner, border): (Vec<usize>, Vec<usize>) =
+        inliers.iter().partition(|&&j| interior(&s.points[j]));
+    let mut inliers = inner;
+    inliers.extend(s.with_normals_like(&border, |_| fit.normal, NORMAL_AGREEMENT_DEG));
+    inliers.sort_unstable();
     let pts: Vec<Vec3> = inliers.iter().map(|&j| s.points[j]).collect();
     let fit = fit_plane(&pts)?;
     let (u, v) = in_plane_axes(&pts, &fit);

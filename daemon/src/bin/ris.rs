@@ -529,7 +529,7 @@ enum Command {
     /// from clouds of calibrated artefacts against the MPE (exit status 3 when a figure fails,
     /// 4 when an artefact was not measured).
     Verify {
-        /// The artefacts file: [ball_bar], [sphere], [plane], [mpe] and optionally [volume].
+        /// The artefacts file: `[ball_bar]`, `[sphere]`, `[plane]`, `[mpe]` and optionally `[volume]`.
         #[arg(long)]
         artefacts: PathBuf,
         /// Clouds (PLY or E57) of the ball bar, one position each.

@@ -239,6 +239,16 @@ pub fn flat_cloud(
     (pts, off)
 }
 
+/// The flat's six positions (yaw, tilt in degrees) of the acceptance set.
+pub const FLAT_POSES: [(f64, f64); 6] = [
+    (0.0, 0.0),
+    (30.0, 0.0),
+    (90.0, 20.0),
+    (-40.0, 35.0),
+    (140.0, -25.0),
+    (60.0, 45.0),
+];
+
 /// A whole acceptance set in `volume()`: the bar in 7 positions (the four space diagonals and
 /// three face diagonals), the flat in 6 positions and orientations, the sphere in 10 positions
 /// spread over the volume; `scale` multiplies every cloud about its artefact (1 = the truth).
@@ -257,15 +267,7 @@ pub fn acceptance_set(
         .enumerate()
         .map(|(i, (a, b))| named("bar", i, bar_cloud(&mut rng, a, b, 15.0, sigma, scale)))
         .collect();
-    let poses = [
-        (0.0, 0.0),
-        (30.0, 0.0),
-        (90.0, 20.0),
-        (-40.0, 35.0),
-        (140.0, -25.0),
-        (60.0, 45.0),
-    ];
-    let planes = poses
+    let planes = FLAT_POSES
         .iter()
         .enumerate()
         .map(|(i, (yaw, tilt))| {

@@ -209,17 +209,9 @@ fn seven_bar_positions_pass_with_the_truth_and_a_scale_error_fails_sd() {
 fn flats_in_six_positions_give_the_truth_and_a_warp_fails_f() {
     let mut rng = Noise::new(11);
     let a = artefacts();
-    let poses = [
-        (0.0, 0.0),
-        (30.0, 0.0),
-        (90.0, 20.0),
-        (-40.0, 35.0),
-        (140.0, -25.0),
-        (60.0, 45.0),
-    ];
     let mut clouds = Vec::new();
     let mut truths = Vec::new();
-    for (k, (yaw, tilt)) in poses.iter().enumerate() {
+    for (k, (yaw, tilt)) in FLAT_POSES.iter().enumerate() {
         let c = Vec3::new(
             rng.range(-100.0, 100.0),
             rng.range(-80.0, 80.0),

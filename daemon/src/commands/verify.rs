@@ -27,6 +27,14 @@ fn load(paths: &[PathBuf]) -> Result<Vec<MeasuredCloud>> {
         .map(|p| {
             let mut c = super::convert::read(p)?;
             let dropped = c.retain_finite();
+            // Points flagged outside their sensor's calibrated volume are not trusted to measure.
+            let outside = c.drop_outside();
+            if outside > 0 {
+                tracing::warn!(
+                    "{}: {outside} points outside the calibrated volume left out",
+                    p.display()
+                );
+            }
             anyhow::ensure!(
                 !c.is_empty(),
                 "{}: the cloud has no finite points{}",

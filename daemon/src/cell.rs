@@ -8,6 +8,7 @@ use serde::Serialize;
 
 use crate::config::CellConfig;
 use crate::pair::{self, DriverState, Pair};
+use crate::prepared::Cache;
 use crate::scan::{self, Part, ScanMode, ScanOptions, ScanReport, ScanState};
 
 /// What one scan of the cell is asked to do.
@@ -57,16 +58,23 @@ pub struct Cell {
 }
 
 impl Cell {
-    /// Open every pair and index every part of `config`; `seed` varies simulated noise.
-    pub fn prepare(config: &CellConfig, seed: u64) -> Result<Cell> {
+    /// Open every pair (see [`pair::open_all`], with the configured cache of prepared pairs)
+    /// and index every part of `config`; `seed` varies simulated noise; `progress(pair, done,
+    /// total)` is called as each pair's model is ready.
+    pub fn prepare(
+        config: &CellConfig,
+        seed: u64,
+        progress: &(dyn Fn(&str, usize, usize) + Sync),
+    ) -> Result<Cell> {
         let parts = config
             .parts
             .iter()
             .map(Part::prepare)
             .collect::<Result<Vec<_>>>()?;
+        let cache = Cache::new(Some(config.storage.cache_dir()));
         Ok(Cell {
             name: config.name.clone(),
-            pairs: pair::open_all(config, seed)?,
+            pairs: pair::open_all(config, seed, &cache, progress)?,
             parts,
             keep_captures: config.storage.keep_captures,
             e57: config.storage.e57,

@@ -80,6 +80,19 @@ pub struct StorageSection {
     /// Also write every cloud as E57 (`<name>.e57`, metres) beside its PLY.
     #[serde(default)]
     pub e57: bool,
+    /// Where prepared pairs (decoded reference recordings) are kept between starts; default
+    /// `<data_dir>/cache`.
+    #[serde(default)]
+    pub cache_dir: Option<PathBuf>,
+}
+
+impl StorageSection {
+    /// The prepared pairs' cache directory.
+    pub fn cache_dir(&self) -> PathBuf {
+        self.cache_dir
+            .clone()
+            .unwrap_or_else(|| self.data_dir.join("cache"))
+    }
 }
 
 impl Default for StorageSection {
@@ -90,6 +103,7 @@ impl Default for StorageSection {
             max_age_days: thirty(),
             keep_captures: false,
             e57: false,
+            cache_dir: None,
         }
     }
 }
@@ -870,6 +884,7 @@ impl CellConfig {
         }
         let mut storage = file.storage.clone();
         storage.data_dir = resolve(&storage.data_dir);
+        storage.cache_dir = storage.cache_dir.as_deref().map(resolve);
         let single_shot = file.single_shot.clone();
         if single_shot
             .step

@@ -10,6 +10,7 @@ pub mod logging;
 pub mod notify;
 pub mod page;
 pub mod pair;
+pub mod prepared;
 pub mod progress;
 pub mod protocol;
 pub mod ros2;

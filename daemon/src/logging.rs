@@ -4,10 +4,34 @@
 use tracing_subscriber::layer::SubscriberExt;
 use tracing_subscriber::util::SubscriberInitExt;
 
-/// Install the subscriber; `RIS_LOG` (e.g. `debug`, `ris_core=trace`) overrides `default`.
-pub fn init(default: &str) {
+/// RIS's own crates: their log lines are the ones a user reads.
+const OWN: [&str; 8] = [
+    "risd",
+    "ris",
+    "ris_daemon",
+    "ris_core",
+    "ris_drivers",
+    "ris_aravis",
+    "ris_projector",
+    "ris_v4l2",
+];
+
+/// The filter of `level` for RIS's crates and warnings only from libraries (Zenoh's INFO lines
+/// are of no use to a user).
+fn default_filter(level: &str) -> String {
+    let mut f = String::from("warn");
+    for c in OWN {
+        f.push_str(&format!(",{c}={level}"));
+    }
+    f
+}
+
+/// Install the subscriber: `level` for RIS's crates and warnings from libraries, unless
+/// `RIS_LOG` (e.g. `debug`, `ris_core=trace,zenoh=info`) says otherwise. Colours only on a
+/// terminal.
+pub fn init(level: &str) {
     let filter = tracing_subscriber::EnvFilter::try_from_env("RIS_LOG")
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_filter(level)));
     if stderr_is_journal() {
         if let Ok(journal) = tracing_journald::layer() {
             let _ = tracing_subscriber::registry()
@@ -20,6 +44,7 @@ pub fn init(default: &str) {
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .with_target(false)
         .try_init();
 }
@@ -47,6 +72,15 @@ fn journal_stream_is(value: &str, dev: u64, ino: u64) -> bool {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn libraries_log_warnings_only_by_default() {
+        let f = super::default_filter("info");
+        assert!(
+            f.starts_with("warn,") && f.contains(",ris_daemon=info") && f.contains(",risd=info")
+        );
+        assert!(tracing_subscriber::EnvFilter::try_new(&f).is_ok(), "{f}");
+    }
+
     #[test]
     fn journal_stream_names_device_and_inode() {
         use super::journal_stream_is;

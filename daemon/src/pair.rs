@@ -12,13 +12,14 @@ use ris_core::omni::scene::OmniScene;
 use ris_core::omni::OmniSensor;
 use ris_core::pattern::CodeLayout;
 use ris_core::sensor::{ModelChoice, Reconstructor, Sensor};
-use ris_core::sim::{Scene, Simulator};
+use ris_core::sim::{RenderCache, Scene, Simulator};
 use ris_drivers::mock::{omni_pair, replay_pair, simulated_pair, FaultInjector};
 use ris_drivers::sequence::SequenceParams;
 use ris_drivers::{Camera, CameraSettings, ErrorKind, Projector, ProjectorSettings};
 use serde::Serialize;
 
 use crate::config::{Backend, CellConfig, SensorConfig, SensorKind, SingleShotSection};
+use crate::prepared::{Cache, Key, REFERENCE, RENDER};
 use crate::single_shot::{OneShot, PairRings, PairSingleShot};
 
 /// The state of a pair's drivers, as health reports it.
@@ -169,17 +170,25 @@ fn omni_model(s: &SensorConfig) -> Result<Model> {
     })
 }
 
-fn model(s: &SensorConfig) -> Result<Model> {
+fn model(s: &SensorConfig, cache: &Cache) -> Result<Model> {
     if s.kind == SensorKind::Omni {
         return omni_model(s);
     }
     let params = DecodeParams::default();
     if let Some(scene) = &s.scene {
         let sc = Scene::load(scene).with_context(|| format!("sensor {}: scene", s.name))?;
-        let board = Simulator::new(sc.sprayed().reference());
-        let layout = board.layout();
-        let reference = decode(&board.capture(&layout, 7, &|_, _| {}), &params)
-            .with_context(|| format!("sensor {}: decoding the reference", s.name))?;
+        // The reference: a white board rendered at the sensor's z = 0, decoded.
+        let board_scene = sc.sprayed().reference();
+        let layout = CodeLayout::new(board_scene.projector.width, board_scene.projector.height);
+        let mut key = Key::new("simulated reference");
+        key.add("scene", &board_scene);
+        key.add("decode", params);
+        let (reference, cached) = cache.get(&s.name, &REFERENCE, &key, || {
+            let board = Simulator::new(board_scene);
+            decode(&board.capture(&layout, 7, &|_, _| {}), &params)
+                .with_context(|| format!("sensor {}: decoding the reference", s.name))
+        })?;
+        tracing::debug!(sensor = %s.name, cached, "reference decoded");
         let reconstructor = Reconstructor::parallax(&sc.camera, sc.projector.center(), &reference)
             .with_context(|| format!("sensor {}: parallax model", s.name))?;
         let to_common = s
@@ -201,16 +210,25 @@ fn model(s: &SensorConfig) -> Result<Model> {
         .ok_or_else(|| anyhow!("sensor {}: no sensor file", s.name))?;
     let sensor = Sensor::load(path)
         .with_context(|| format!("sensor {}: sensor file {}", s.name, path.display()))?;
-    let reconstructor = Reconstructor::new(&sensor, ModelChoice::Auto, &params)
-        .with_context(|| format!("sensor {}: preparing {}", s.name, path.display()))?;
     let reference = match &sensor.reference {
-        Some(dir) => Some(
-            CaptureSet::load(dir)
-                .and_then(|c| decode(&c, &params))
-                .with_context(|| format!("sensor {}: reference {}", s.name, dir.display()))?,
-        ),
+        Some(dir) => {
+            let mut key = Key::new("recorded reference");
+            key.dir("recording", dir);
+            key.add("camera", (sensor.camera.width, sensor.camera.height));
+            key.add("decode", params);
+            let (reference, cached) = cache
+                .get(&s.name, &REFERENCE, &key, || {
+                    Ok(Reconstructor::decode_reference(&sensor, dir, &params)?)
+                })
+                .with_context(|| format!("sensor {}: reference {}", s.name, dir.display()))?;
+            tracing::debug!(sensor = %s.name, cached, "reference decoded");
+            Some(reference)
+        }
         None => None,
     };
+    let reconstructor =
+        Reconstructor::with_reference(&sensor, ModelChoice::Auto, reference.as_ref())
+            .with_context(|| format!("sensor {}: preparing {}", s.name, path.display()))?;
     let to_common = sensor.to_common.ok_or_else(|| {
         anyhow!(
             "sensor {}: {} has no [to_common]; calibrate the cell (ris calibrate cell)",
@@ -230,11 +248,66 @@ fn model(s: &SensorConfig) -> Result<Model> {
     })
 }
 
-/// Open pair `s` through its backend: model first (a bad sensor file fails before any device
-/// is touched), then the projector, then the camera. `seed` varies simulated noise.
-pub fn open(s: &SensorConfig, single: &SingleShotSection, seed: u64) -> Result<Pair> {
+/// What preparing a pair computes before any device is touched: its sensor model and, for a
+/// mock pair, the simulated cell its camera renders.
+pub struct Prepared {
+    model: Model,
+    simulator: Option<Arc<Simulator>>,
+    seconds: f64,
+}
+
+/// Prepare pair `s`: the sensor model (a bad sensor file fails here, before any device is
+/// touched; the reference from `cache` when unchanged) and a mock pair's simulator.
+pub fn prepare(s: &SensorConfig, cache: &Cache) -> Result<Prepared> {
     let t = Instant::now();
-    let mut m = model(s)?;
+    let mut model = model(s, cache)?;
+    let simulator = match (&s.backend, &model.omni) {
+        (Backend::Mock, None) => {
+            let sc = model
+                .scene
+                .take()
+                .ok_or_else(|| anyhow!("sensor {}: a mock pair needs its scene", s.name))?;
+            // The camera's ray-cast scene: the scene file and its directory (meshes) key it.
+            let mut key = Key::new("render cache");
+            if let Some(path) = &s.scene {
+                key.file("scene", path);
+                if let Some(dir) = path.parent() {
+                    key.dir("scene directory", dir);
+                }
+            }
+            let (render, cached) =
+                cache.get(&s.name, &RENDER, &key, || Ok(RenderCache::build(&sc)))?;
+            tracing::debug!(sensor = %s.name, cached, "render cache");
+            Some(Arc::new(Simulator::with_cache(sc, render)))
+        }
+        _ => None,
+    };
+    Ok(Prepared {
+        model,
+        simulator,
+        seconds: t.elapsed().as_secs_f64(),
+    })
+}
+
+/// Open pair `s` through its backend: [`prepare`], then the projector, then the camera. `seed`
+/// varies simulated noise.
+pub fn open(s: &SensorConfig, single: &SingleShotSection, seed: u64) -> Result<Pair> {
+    attach(s, prepare(s, &Cache::default())?, single, seed)
+}
+
+/// Open the devices of prepared pair `s`: the projector, then the camera.
+pub fn attach(
+    s: &SensorConfig,
+    prepared: Prepared,
+    single: &SingleShotSection,
+    seed: u64,
+) -> Result<Pair> {
+    let t = Instant::now();
+    let Prepared {
+        model: mut m,
+        simulator,
+        seconds,
+    } = prepared;
     let omni = m.omni.take();
     let room = omni.as_ref().and_then(|o| o.1.clone());
     let (camera, projector, faults, backend): (
@@ -250,12 +323,9 @@ pub fn open(s: &SensorConfig, single: &SingleShotSection, seed: u64) -> Result<P
             (Box::new(cam), Box::new(proj), Some(faults), "mock")
         }
         (Backend::Mock, None) => {
-            let sc = m
-                .scene
-                .clone()
+            let sim = simulator
                 .ok_or_else(|| anyhow!("sensor {}: a mock pair needs its scene", s.name))?;
-            let (mut cam, proj, faults) =
-                simulated_pair(Arc::new(Simulator::new(sc)), &s.name, seed);
+            let (mut cam, proj, faults) = simulated_pair(sim, &s.name, seed);
             cam.set_exposure_us(s.exposure_us)
                 .with_context(|| format!("sensor {}: exposure", s.name))?;
             (Box::new(cam), Box::new(proj), Some(faults), "mock")
@@ -311,7 +381,8 @@ pub fn open(s: &SensorConfig, single: &SingleShotSection, seed: u64) -> Result<P
         backend,
         camera = %camera.info().id,
         projector = %projector.info().id,
-        seconds = t.elapsed().as_secs_f64(),
+        prepared_s = seconds,
+        opened_s = t.elapsed().as_secs_f64(),
         "pair ready"
     );
     let reference = m.reference.map(Arc::new);
@@ -360,11 +431,52 @@ pub fn open(s: &SensorConfig, single: &SingleShotSection, seed: u64) -> Result<P
     })
 }
 
-/// Open every pair of `config`, in file order.
-pub fn open_all(config: &CellConfig, seed: u64) -> Result<Vec<Pair>> {
+/// Open every pair of `config`: all prepared at once (each on its own thread; the models are
+/// pure computation), then their devices opened one after another in file order (drivers and
+/// displays are not opened concurrently). `prepared(name, done, total)` is called as each pair's
+/// model is ready.
+pub fn open_all(
+    config: &CellConfig,
+    seed: u64,
+    cache: &Cache,
+    prepared: &(dyn Fn(&str, usize, usize) + Sync),
+) -> Result<Vec<Pair>> {
+    let total = config.sensors.len();
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let models: Vec<Result<Prepared>> = std::thread::scope(|scope| {
+        let handles: Vec<_> = config
+            .sensors
+            .iter()
+            .map(|s| {
+                let done = &done;
+                scope.spawn(move || {
+                    let p = prepare(s, cache);
+                    if p.is_ok() {
+                        let n = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
+                        prepared(&s.name, n, total);
+                    }
+                    p
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .zip(&config.sensors)
+            .map(|(h, s)| {
+                h.join().unwrap_or_else(|panic| {
+                    Err(anyhow!(
+                        "sensor {}: preparing panicked: {}",
+                        s.name,
+                        crate::scan::panic_message(panic.as_ref())
+                    ))
+                })
+            })
+            .collect()
+    });
     config
         .sensors
         .iter()
-        .map(|s| open(s, &config.single_shot, seed))
+        .zip(models)
+        .map(|(s, m)| attach(s, m?, &config.single_shot, seed))
         .collect()
 }

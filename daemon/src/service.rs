@@ -38,6 +38,9 @@ pub struct Status {
     pub last_error: Option<String>,
     /// Each pair's drivers (empty while preparing).
     pub pairs: Vec<PairStatus>,
+    /// While preparing: the pairs whose sensor model is ready.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub prepared: Vec<String>,
 }
 
 struct Job {
@@ -289,6 +292,7 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
         last_scan: None,
         last_error: None,
         pairs: Vec::new(),
+        prepared: Vec::new(),
     }));
     let health = session
         .declare_queryable(health_key(&cell))
@@ -336,9 +340,15 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
 
     // Preparation (reference recordings, CAD indexing) off the runtime; SIGTERM does not wait
     // for it.
-    let prep_config = config.clone();
-    let mut preparation =
-        tokio::task::spawn_blocking(move || -> Result<_> { Cell::prepare(&prep_config, 1) });
+    let (prep_config, prep_status) = (config.clone(), status.clone());
+    let mut preparation = tokio::task::spawn_blocking(move || -> Result<_> {
+        Cell::prepare(&prep_config, 1, &|pair, done, total| {
+            tracing::info!(pair, "pair prepared ({done} of {total})");
+            if let Ok(mut s) = prep_status.lock() {
+                s.prepared.push(pair.to_string());
+            }
+        })
+    });
     let mut prepared = false;
     let mut token = None;
     let (tx, rx) = mpsc::sync_channel::<Job>(config.workers.queue);

@@ -59,7 +59,7 @@ fn adaptive_scans_in_the_cell_match_the_sprayed_part_per_material() {
         scene_path().display().to_string()
     );
     let config = CellConfig::parse(&text, Path::new("."), "test cell").expect("config");
-    let mut cell = Cell::prepare(&config, 5).expect("cell");
+    let mut cell = Cell::prepare(&config, 5, &|_, _, _| {}).expect("cell");
     let data = tempfile::tempdir().expect("tmp");
     let mut phases = std::sync::Mutex::new(Vec::<String>::new());
     let scan = |cell: &mut Cell, mode: ScanMode, id: &str| {

@@ -307,6 +307,34 @@ fn once_scans_the_builtin_mock_cell() {
             .expect("json");
     assert_eq!(full["verdict"], "pass");
     assert!(scan.join("deviation.png").is_file() && scan.join("deviation.ply").is_file());
+
+    // A second start reuses the prepared pairs (a decoded reference and a render cache per
+    // pair under <data dir>/cache) and measures bit for bit what the cold start measured.
+    let mut cached: Vec<String> = std::fs::read_dir(dir.path().join("cache"))
+        .expect("cache")
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    cached.sort();
+    assert_eq!(cached.len(), 8, "{cached:?}");
+    assert!(cached[0].starts_with("s1-") && cached[0].ends_with(".reference"));
+    let o = Command::new(env!("CARGO_BIN_EXE_risd"))
+        .args(["--once", "--scan-id", "warm", "--data-dir"])
+        .arg(dir.path())
+        .env("RIS_LOG", "risd=debug,ris_daemon=debug,warn")
+        .output()
+        .expect("risd");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let log = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(log.matches("cached=true").count(), 8, "{log}");
+    let warm = dir.path().join("scans/warm");
+    for f in ["s1.ply", "s4.ply", "merged.ply", "deviation.ply"] {
+        assert!(
+            std::fs::read(scan.join(f)).expect("cold")
+                == std::fs::read(warm.join(f)).expect("warm"),
+            "{f} differs between a cold and a warm start"
+        );
+    }
 }
 
 /// An X-point pattern finer than the cameras resolve is refused per pair at open, with the
@@ -320,7 +348,8 @@ fn single_shot_scan(
     data: &Path,
     id: &str,
 ) -> anyhow::Result<(ris_daemon::scan::ScanReport, std::path::PathBuf)> {
-    let mut pairs = ris_daemon::pair::open_all(config, 5).expect("pairs");
+    let mut pairs =
+        ris_daemon::pair::open_all(config, 5, &Default::default(), &|_, _, _| {}).expect("pairs");
     ris_daemon::scan::run(
         "mock",
         &mut pairs,
@@ -451,7 +480,8 @@ fn sensors_without_points_are_named() {
 fn a_fault_in_one_pair_fails_that_scan_and_the_next_succeeds() {
     use ris_drivers::mock::Fault;
     let config = CellConfig::load(&config_dir().join("mock-cell.toml")).expect("config");
-    let mut pairs = ris_daemon::pair::open_all(&config, 3).expect("pairs");
+    let mut pairs =
+        ris_daemon::pair::open_all(&config, 3, &Default::default(), &|_, _, _| {}).expect("pairs");
     let data = tempfile::tempdir().expect("tmp");
     // s2's camera ignores four triggers in a row: one slide exhausts its retries.
     let s2 = pairs.iter().position(|p| p.name == "s2").expect("s2");

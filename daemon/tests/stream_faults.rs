@@ -18,7 +18,7 @@ fn a_missed_frame_is_skipped_and_a_lost_camera_ends_the_stream_with_its_reason()
     config.sensors.truncate(1);
     config.parts.clear();
     config.sensors[0].frame_timeout = Duration::from_millis(300);
-    let mut cell = Cell::prepare(&config, 5).expect("cell");
+    let mut cell = Cell::prepare(&config, 5, &|_, _, _| {}).expect("cell");
     let faults = cell.pairs[0].faults.clone().expect("mock faults");
     let at = faults.exposures() + 3;
     faults.at(at, Fault::DropFrame);

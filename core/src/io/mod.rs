@@ -1,5 +1,6 @@
 //! File plumbing shared by every writer: atomic writes, NumPy arrays, TOML reading.
 
+pub mod bytes;
 pub mod npy;
 pub mod opencv;
 

@@ -17,6 +17,8 @@ pub use parallax::{parallel_height, Parallax, ParallaxPoint};
 pub use rays::RayTable;
 pub use volume::{CalibratedVolume, VolumeSection};
 
+use std::path::Path;
+
 use rayon::prelude::*;
 
 use crate::capture::CaptureSet;
@@ -68,14 +70,45 @@ impl Reconstructor {
         choice: ModelChoice,
         params: &DecodeParams,
     ) -> Result<Reconstructor> {
-        let use_parallax = match choice {
+        let reference = match (&sensor.reference, Self::uses_parallax(sensor, choice)) {
+            (Some(dir), true) => Some(Self::decode_reference(sensor, dir, params)?),
+            _ => None,
+        };
+        Reconstructor::with_reference(sensor, choice, reference.as_ref())
+    }
+
+    /// Whether `choice` gives the parallax model for `sensor`.
+    pub fn uses_parallax(sensor: &Sensor, choice: ModelChoice) -> bool {
+        match choice {
             ModelChoice::Auto => sensor.reference.is_some(),
             ModelChoice::Parallax => true,
             ModelChoice::Classical => false,
-        };
+        }
+    }
+
+    /// Load and decode `sensor`'s reference recording `dir`, checked against its camera.
+    pub fn decode_reference(sensor: &Sensor, dir: &Path, params: &DecodeParams) -> Result<Decoded> {
+        let capture = CaptureSet::load(dir)?;
+        check_size(
+            &sensor.camera,
+            capture.width,
+            capture.height,
+            &dir.display().to_string(),
+        )?;
+        decode(&capture, params)
+    }
+
+    /// As [`Reconstructor::new`] with the reference recording already decoded (`reference`:
+    /// the decode of `sensor.reference`, needed by the parallax model), so a caller that keeps
+    /// decoded references (risd's prepared pairs) does not decode twice.
+    pub fn with_reference(
+        sensor: &Sensor,
+        choice: ModelChoice,
+        reference: Option<&Decoded>,
+    ) -> Result<Reconstructor> {
         let rays = RayTable::new(&sensor.camera);
-        let model = if use_parallax {
-            let dir = sensor.reference.as_ref().ok_or_else(|| {
+        let model = if Self::uses_parallax(sensor, choice) {
+            let reference = reference.ok_or_else(|| {
                 Error::invalid(
                     "sensor",
                     "reference",
@@ -89,19 +122,24 @@ impl Reconstructor {
                     "the parallax model needs the projector centre",
                 )
             })?;
-            let capture = CaptureSet::load(dir)?;
-            check_size(
-                &sensor.camera,
-                capture.width,
-                capture.height,
-                &dir.display().to_string(),
-            )?;
-            let reference = decode(&capture, params)?;
+            if (reference.width, reference.height) != (sensor.camera.width, sensor.camera.height) {
+                return Err(Error::invalid(
+                    "sensor",
+                    "reference",
+                    format!(
+                        "the decoded reference is {}x{}; the camera is {}x{}",
+                        reference.width,
+                        reference.height,
+                        sensor.camera.width,
+                        sensor.camera.height
+                    ),
+                ));
+            }
             let (geometry, axis) = parallax_from_reference(
                 &sensor.camera,
                 &rays,
                 op,
-                &reference,
+                reference,
                 sensor.reference_extent,
             )?;
             let residual = match &sensor.residual {
@@ -405,7 +443,7 @@ fn parallax_from_reference(
             continue;
         }
         let map = PlaneCodeMap::fit(&samples, DEFAULT_DEGREE)?;
-        tracing::info!(
+        tracing::debug!(
             ?axis,
             rms = map.rms,
             inliers = map.inliers,

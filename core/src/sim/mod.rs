@@ -53,6 +53,12 @@ impl Simulator {
     /// Ray-cast `scene` once.
     pub fn new(scene: Scene) -> Simulator {
         let cache = RenderCache::build(&scene);
+        Simulator::with_cache(scene, cache)
+    }
+
+    /// `scene` with its render cache built earlier ([`RenderCache::build`] of the same scene,
+    /// e.g. kept on disk with [`RenderCache::to_bytes`]).
+    pub fn with_cache(scene: Scene, cache: RenderCache) -> Simulator {
         Simulator {
             scene,
             cache,
@@ -282,8 +288,8 @@ mod tests {
 
     /// A frame under a mask is the same whether its blur came from the cache or not, and a
     /// changed mask is blurred anew.
-    #[test]
-    fn masked_frames_do_not_depend_on_the_masks_shown_before() {
+    /// A small scene with inter-reflection (so every table of the cache is filled).
+    fn small_scene() -> Scene {
         let text = r#"
 [camera]
 width = 80
@@ -306,7 +312,45 @@ shape = "plane"
 material = "m"
 "#;
         let file: SceneFile = toml::from_str(text).expect("toml");
-        let scene = Scene::from_file(file, Path::new("."), "test").expect("scene");
+        Scene::from_file(file, Path::new("."), "test").expect("scene")
+    }
+
+    /// A render cache kept as bytes renders the same frames and truth as the one built; damaged
+    /// bytes are refused.
+    #[test]
+    fn render_caches_survive_their_bytes() {
+        let scene = small_scene();
+        let built = Simulator::new(scene.clone());
+        let bytes = built.cache.to_bytes();
+        let back = RenderCache::from_bytes(&bytes).expect("read back");
+        assert!(!back.bounce_sigmas.is_empty() && bytes.len() > 80 * 60 * 40);
+        let kept = Simulator::with_cache(scene, back);
+        let layout = built.layout();
+        for (i, p) in layout.sequence(true).into_iter().enumerate().take(6) {
+            assert!(built.frame(&layout, p, i as u64) == kept.frame(&layout, p, i as u64));
+        }
+        let bits = |t: &Truth| {
+            t.xyz
+                .iter()
+                .flatten()
+                .map(|x| x.to_bits())
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(bits(&built.cache.truth), bits(&kept.cache.truth));
+        for cut in [0, 5, bytes.len() / 2, bytes.len() - 1] {
+            assert!(
+                RenderCache::from_bytes(&bytes[..cut]).is_none(),
+                "cut {cut}"
+            );
+        }
+        let mut longer = bytes.clone();
+        longer.push(0);
+        assert!(RenderCache::from_bytes(&longer).is_none());
+    }
+
+    #[test]
+    fn masked_frames_do_not_depend_on_the_masks_shown_before() {
+        let scene = small_scene();
         let layout = CodeLayout::new(128, 96);
         let mask = |k: usize| ProjectionMask {
             width: 128,

@@ -10,6 +10,7 @@ use rayon::prelude::*;
 use super::light::Light;
 use super::scene::Scene;
 use crate::geometry::Vec3;
+use crate::io::bytes::{ByteReader, ByteWriter};
 
 /// One directly lit camera sub-sample: where it sits in the projector, and its weight
 /// ((albedo × cos + Blinn-Phong lobe) × irradiance falloff / sub-samples per pixel).
@@ -63,6 +64,117 @@ pub struct RenderCache {
 }
 
 impl RenderCache {
+    /// The cache as bytes (every array bit-exact), read back by [`RenderCache::from_bytes`].
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let n = self.offsets.len();
+        let mut w = ByteWriter::with_capacity(64 + 40 * n + 16 * self.samples.len());
+        w.u32(self.width);
+        w.u32(self.height);
+        w.u32s(&self.offsets);
+        let (mut u, mut v, mut weight) = (Vec::new(), Vec::new(), Vec::new());
+        for s in &self.samples {
+            u.push(s.u);
+            v.push(s.v);
+            weight.push(s.weight);
+        }
+        for a in [&u, &v, &weight] {
+            w.f32s(a);
+        }
+        w.u32s(&self.bounce_offsets);
+        let (mut u, mut v, mut weight, mut channel) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for b in &self.bounces {
+            u.push(b.u);
+            v.push(b.v);
+            weight.push(b.weight);
+            channel.push(b.channel);
+        }
+        for a in [&u, &v, &weight] {
+            w.f32s(a);
+        }
+        w.bytes(&channel);
+        w.f32s(&self.bounce_sigmas);
+        w.f32s(&self.ambient);
+        let t = &self.truth;
+        w.u32(t.width);
+        w.u32(t.height);
+        let xyz: Vec<f32> = t.xyz.iter().flatten().copied().collect();
+        w.f32s(&xyz);
+        w.bytes(&t.material);
+        w.f32s(&t.lit);
+        w.bytes
+    }
+
+    /// A cache written by [`RenderCache::to_bytes`]; `None` when the bytes are damaged or
+    /// inconsistent (lengths, offsets).
+    pub fn from_bytes(bytes: &[u8]) -> Option<RenderCache> {
+        let mut r = ByteReader::new(bytes);
+        let (width, height) = (r.u32()?, r.u32()?);
+        let pixels = (width as usize).checked_mul(height as usize)?;
+        let offsets = r.u32s()?;
+        let (u, v, weight) = (r.f32s()?, r.f32s()?, r.f32s()?);
+        let bounce_offsets = r.u32s()?;
+        let (bu, bv, bweight) = (r.f32s()?, r.f32s()?, r.f32s()?);
+        let channel = r.bytes()?;
+        let bounce_sigmas = r.f32s()?;
+        let ambient = r.f32s()?;
+        let (tw, th) = (r.u32()?, r.u32()?);
+        let xyz = r.f32s()?;
+        let material = r.bytes()?.to_vec();
+        let lit = r.f32s()?;
+        let consistent = r.remaining() == 0
+            && offsets.len() == pixels + 1
+            && bounce_offsets.len() == pixels + 1
+            && offsets.last().map(|&o| o as usize) == Some(u.len())
+            && bounce_offsets.last().map(|&o| o as usize) == Some(bu.len())
+            && offsets.windows(2).all(|w| w[0] <= w[1])
+            && bounce_offsets.windows(2).all(|w| w[0] <= w[1])
+            && v.len() == u.len()
+            && weight.len() == u.len()
+            && bv.len() == bu.len()
+            && bweight.len() == bu.len()
+            && channel.len() == bu.len()
+            && channel.iter().all(|&c| (c as usize) < bounce_sigmas.len())
+            && ambient.len() == pixels
+            && (tw, th) == (width, height)
+            && xyz.len() == 3 * pixels
+            && material.len() == pixels
+            && lit.len() == pixels;
+        if !consistent {
+            return None;
+        }
+        Some(RenderCache {
+            width,
+            height,
+            offsets,
+            samples: (0..u.len())
+                .map(|i| LitSample {
+                    u: u[i],
+                    v: v[i],
+                    weight: weight[i],
+                })
+                .collect(),
+            bounce_offsets,
+            bounces: (0..bu.len())
+                .map(|i| BounceSample {
+                    u: bu[i],
+                    v: bv[i],
+                    weight: bweight[i],
+                    channel: channel[i],
+                })
+                .collect(),
+            bounce_sigmas,
+            ambient,
+            truth: Truth {
+                width,
+                height,
+                xyz: xyz.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+                material,
+                lit,
+            },
+        })
+    }
+
     /// Ray-cast the scene (parallel over camera rows).
     pub fn build(scene: &Scene) -> RenderCache {
         let (w, h) = (scene.camera.width as usize, scene.camera.height as usize);

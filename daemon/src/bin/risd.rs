@@ -27,6 +27,10 @@ struct Args {
     /// Data directory (replaces the file's).
     #[arg(long)]
     data_dir: Option<PathBuf>,
+    /// Directory of prepared pairs kept between starts (replaces the file's; default
+    /// `<data dir>/cache`).
+    #[arg(long)]
+    cache_dir: Option<PathBuf>,
     /// Scan the cell once, write clouds under the data directory, print where, and exit.
     #[arg(long)]
     once: bool,
@@ -62,6 +66,9 @@ fn load(args: &Args) -> Result<CellConfig> {
     }
     if let Some(d) = &args.data_dir {
         config.storage.data_dir = d.clone();
+    }
+    if let Some(d) = &args.cache_dir {
+        config.storage.cache_dir = Some(d.clone());
     }
     Ok(config)
 }
@@ -148,7 +155,9 @@ fn main() -> Result<()> {
         tracing::info!(scan = %name, "removed");
     }
     tracing::info!(cell = %config.name, sensors = config.sensors.len(), "preparing the pairs");
-    let mut cell = Cell::prepare(&config, 1)?;
+    let mut cell = Cell::prepare(&config, 1, &|pair, done, total| {
+        tracing::info!(pair, "pair prepared ({done} of {total})")
+    })?;
     let id = match &args.scan_id {
         Some(id) => {
             if id.is_empty()

@@ -4,12 +4,12 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
-use serde::Serialize;
 
 use crate::config::CellConfig;
-use crate::pair::{self, DriverState, Pair};
+use crate::pair::{self, Pair};
 use crate::prepared::Cache;
-use crate::scan::{self, Part, ScanMode, ScanOptions, ScanReport, ScanState};
+use crate::protocol::{PairStatus, ScanMode, ScanState};
+use crate::scan::{self, Part, ScanOptions, ScanReport};
 
 /// What one scan of the cell is asked to do.
 #[derive(Clone, Debug, Default)]
@@ -22,27 +22,6 @@ pub struct ScanJob {
     pub tag: Option<String>,
     /// How the pairs acquire.
     pub mode: ScanMode,
-}
-
-/// One pair's line in health.
-#[derive(Clone, Debug, Serialize)]
-pub struct PairStatus {
-    /// Sensor.
-    pub sensor: String,
-    /// Backend.
-    pub backend: String,
-    /// What it measures with (`structured-light` or `omni`).
-    pub kind: crate::config::SensorKind,
-    /// Camera id.
-    pub camera: String,
-    /// Projector id.
-    pub projector: String,
-    /// Driver state.
-    #[serde(flatten)]
-    pub driver: DriverState,
-    /// Why this pair cannot scan single-shot (absent when it can).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub single_shot: Option<String>,
 }
 
 /// A prepared cell.

@@ -396,7 +396,7 @@ pub enum Backend {
 }
 
 /// What a sensor measures with.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum SensorKind {
     /// A projector+camera pair: Gray codes, the adaptive loop, X-point single shots.

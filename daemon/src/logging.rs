@@ -16,22 +16,23 @@ const OWN: [&str; 8] = [
     "ris_v4l2",
 ];
 
-/// The filter of `level` for RIS's crates and warnings only from libraries (Zenoh's INFO lines
-/// are of no use to a user).
-fn default_filter(level: &str) -> String {
-    let mut f = String::from("warn");
+/// The filter of `level` for RIS's crates and `libraries` for every other crate (Zenoh's INFO
+/// lines are of no use to a user).
+fn default_filter(level: &str, libraries: &str) -> String {
+    let mut f = String::from(libraries);
     for c in OWN {
         f.push_str(&format!(",{c}={level}"));
     }
     f
 }
 
-/// Install the subscriber: `level` for RIS's crates and warnings from libraries, unless
+/// Install the subscriber: `level` for RIS's crates and `libraries` for the others (a client
+/// command says in its own words what went wrong, so it takes only their errors), unless
 /// `RIS_LOG` (e.g. `debug`, `ris_core=trace,zenoh=info`) says otherwise. Colours only on a
 /// terminal.
-pub fn init(level: &str) {
+pub fn init(level: &str, libraries: &str) {
     let filter = tracing_subscriber::EnvFilter::try_from_env("RIS_LOG")
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_filter(level)));
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_filter(level, libraries)));
     if stderr_is_journal() {
         if let Ok(journal) = tracing_journald::layer() {
             let _ = tracing_subscriber::registry()
@@ -74,7 +75,7 @@ fn journal_stream_is(value: &str, dev: u64, ino: u64) -> bool {
 mod tests {
     #[test]
     fn libraries_log_warnings_only_by_default() {
-        let f = super::default_filter("info");
+        let f = super::default_filter("info", "warn");
         assert!(
             f.starts_with("warn,") && f.contains(",ris_daemon=info") && f.contains(",risd=info")
         );

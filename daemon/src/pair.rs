@@ -16,24 +16,11 @@ use ris_core::sim::{RenderCache, Scene, Simulator};
 use ris_drivers::mock::{omni_pair, replay_pair, simulated_pair, FaultInjector};
 use ris_drivers::sequence::SequenceParams;
 use ris_drivers::{Camera, CameraSettings, ErrorKind, Projector, ProjectorSettings};
-use serde::Serialize;
 
 use crate::config::{Backend, CellConfig, SensorConfig, SensorKind, SingleShotSection};
 use crate::prepared::{Cache, Key, REFERENCE, RENDER};
+use crate::protocol::DriverState;
 use crate::single_shot::{OneShot, PairRings, PairSingleShot};
-
-/// The state of a pair's drivers, as health reports it.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
-#[serde(tag = "state", rename_all = "snake_case")]
-pub enum DriverState {
-    /// Both devices answer.
-    Connected,
-    /// The camera was lost; risd tries to reopen it between scans.
-    Reconnecting {
-        /// The last error.
-        reason: String,
-    },
-}
 
 /// A sensor pair ready to scan.
 pub struct Pair {

@@ -1,8 +1,13 @@
-//! The Zenoh protocol of a cell (SPEC §12), shared by risd and `ris scan`: key expressions and
-//! the scan request with its parser. A request is a JSON object on the exact scan key; the
-//! parser bounds what it echoes, so a hostile payload cannot become a huge reply or log line.
+//! The Zenoh protocol of a cell (SPEC §12), the one definition risd, the `ris` clients and the
+//! tests share: every key expression, and every request, reply, state and status as a type that
+//! is serialised as the JSON on the wire. A request is a JSON object on the exact key; the
+//! parsers bound what they echo, so a hostile payload cannot become a huge reply or log line.
 
-use serde::Deserialize;
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+use crate::config::{SensorKind, MAX_RATE_HZ};
 
 /// Longest tag a request may carry, characters.
 pub const MAX_TAG: usize = 256;
@@ -23,28 +28,110 @@ pub fn health_key(cell: &str) -> String {
 
 /// `ris/<cell>/scans/<id>/state`.
 pub fn state_key(cell: &str, scan_id: &str) -> String {
-    format!("ris/{cell}/scans/{scan_id}/state")
+    ScanItem::State.key(cell, scan_id)
+}
+
+/// `ris/<cell>/**`: everything of a cell (access control).
+pub fn cell_key(cell: &str) -> String {
+    format!("ris/{cell}/**")
+}
+
+/// `ris/<cell>/scans/**`: every scan's publications and stored items.
+pub fn scans_key(cell: &str) -> String {
+    format!("ris/{cell}/scans/**")
+}
+
+/// `ris/<cell>/scans/*/state`: every scan's states.
+pub fn scan_states_key(cell: &str) -> String {
+    format!("ris/{cell}/scans/*/state")
+}
+
+/// One item of a scan, under `ris/<cell>/scans/<id>/`.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum ScanItem {
+    /// `state`: the scan's [`ScanState`], published as it changes.
+    State,
+    /// `report`: the inspection report (JSON).
+    Report,
+    /// `page`: the one-page HTML report.
+    Page,
+    /// `map`: the labelled deviation map (PNG).
+    Map,
+    /// `deviation`: the deviation cloud (PLY).
+    Deviation,
+    /// `cloud/<name>`: a sensor's cloud or the merged one (PLY).
+    Cloud(String),
+}
+
+impl ScanItem {
+    /// The key of this item of scan `scan_id` of `cell`.
+    pub fn key(&self, cell: &str, scan_id: &str) -> String {
+        let item = match self {
+            ScanItem::State => "state",
+            ScanItem::Report => "report",
+            ScanItem::Page => "page",
+            ScanItem::Map => "map",
+            ScanItem::Deviation => "deviation",
+            ScanItem::Cloud(name) => return format!("ris/{cell}/scans/{scan_id}/cloud/{name}"),
+        };
+        format!("ris/{cell}/scans/{scan_id}/{item}")
+    }
+
+    /// The cell, scan id and item a key names (`None`: not a scan item's key).
+    pub fn parse(key: &str) -> Option<(String, String, ScanItem)> {
+        let parts: Vec<&str> = key.split('/').collect();
+        let (cell, id) = match parts.as_slice() {
+            ["ris", cell, "scans", id, ..] => (*cell, *id),
+            _ => return None,
+        };
+        let item = match &parts[4..] {
+            ["state"] => ScanItem::State,
+            ["report"] => ScanItem::Report,
+            ["page"] => ScanItem::Page,
+            ["map"] => ScanItem::Map,
+            ["deviation"] => ScanItem::Deviation,
+            ["cloud", name] => ScanItem::Cloud((*name).to_string()),
+            _ => return None,
+        };
+        Some((cell.to_string(), id.to_string(), item))
+    }
+}
+
+/// The reply to an accepted scan request.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ScanReply {
+    /// The scan's id (its keys are under `ris/<cell>/scans/<id>/`).
+    pub scan_id: String,
+    /// `accepted`.
+    pub state: String,
+}
+
+/// The body of every refusal (an error reply): what to change.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ErrorReply {
+    /// Why, in words.
+    pub error: String,
 }
 
 /// A scan request (`ris/<cell>/scan` payload: a JSON object, every field optional).
-#[derive(Clone, Debug, Default, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ScanRequest {
-    /// `gray` (default); `adaptive` and `single-shot` are refused by this build.
-    #[serde(default)]
-    pub mode: Option<String>,
+    /// How the pairs acquire (default `gray`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mode: Option<ScanMode>,
     /// Sensors to scan (default all).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sensors: Option<Vec<String>>,
     /// Inspect the merged cloud (default: when the cell defines exactly one part, or `part`
     /// names one).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub inspect: Option<bool>,
     /// Part id (required to inspect when the cell defines several).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub part: Option<String>,
     /// Free text stored with the scan (`scan.json`), at most [`MAX_TAG`] characters.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tag: Option<String>,
 }
 
@@ -91,6 +178,258 @@ impl ScanRequest {
         }
         Ok(req)
     }
+}
+
+// Scans: how one acquires and the states it goes through.
+
+/// Progress of a scan, as the daemon publishes it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "state", rename_all = "snake_case")]
+pub enum ScanState {
+    /// Waiting in the queue.
+    Queued,
+    /// A pair is acquiring.
+    Acquiring {
+        /// Sensor.
+        sensor: String,
+        /// Step of an adaptive scan (`flats`, `advanced projection`, `final projection`, ...).
+        #[serde(skip_serializing_if = "Option::is_none")]
+        phase: Option<String>,
+        /// Frames recorded (of this step, in an adaptive scan).
+        frame: usize,
+        /// Frames of the sequence (of this step).
+        frames: usize,
+    },
+    /// A sensor's capture is being decoded and reconstructed.
+    Reconstructing {
+        /// Sensor.
+        sensor: String,
+    },
+    /// Sensor clouds are merged.
+    Merging,
+    /// The merged cloud is registered to the part's CAD model and its deviations measured.
+    Inspecting {
+        /// Part id.
+        part: String,
+    },
+    /// Finished.
+    Done,
+    /// Failed.
+    Failed {
+        /// Why.
+        reason: String,
+    },
+}
+
+/// How a scan acquires.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ScanMode {
+    /// The Gray-code sequence with inverses, unmasked.
+    #[default]
+    Gray,
+    /// The adaptive projection-mask loop (dark, black and shiny surfaces), then the Gray
+    /// sequence under the final mask.
+    Adaptive,
+    /// One frame of the X-point pattern per pair (moving parts; sparser points).
+    SingleShot,
+}
+
+impl ScanMode {
+    /// Parse a request's or command line's mode.
+    pub fn parse(text: &str) -> Option<ScanMode> {
+        match text {
+            "gray" => Some(ScanMode::Gray),
+            "adaptive" => Some(ScanMode::Adaptive),
+            "single-shot" => Some(ScanMode::SingleShot),
+            _ => None,
+        }
+    }
+}
+
+// Streams: the request, its keys and the status.
+
+/// `ris/<cell>/stream`: start, stop or ask about the stream.
+pub fn stream_key(cell: &str) -> String {
+    format!("ris/{cell}/stream")
+}
+
+/// `ris/<cell>/stream/<sensor>/<what>` (`cloud`, `fused`, `point`; `*` for every one).
+pub fn stream_sensor_key(cell: &str, sensor: &str, what: &str) -> String {
+    format!("ris/{cell}/stream/{sensor}/{what}")
+}
+
+/// A stream request (a JSON object on the exact stream key).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StreamRequest {
+    /// `start`, `stop` or `status` (default `status`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub action: Option<String>,
+    /// Frames per second asked of each pair (default the cell's `[single_shot] rate_hz`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rate: Option<f64>,
+    /// Sensors to stream (default all).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sensors: Option<Vec<String>>,
+}
+
+/// What a start asks for, validated.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StreamSpec {
+    /// Sensors, in cell order.
+    pub sensors: Vec<String>,
+    /// Frames per second per pair at most.
+    pub rate_hz: f64,
+}
+
+impl StreamRequest {
+    /// Parse a request body: a JSON object of at most [`MAX_REQUEST`] bytes.
+    pub fn parse(body: &[u8]) -> Result<StreamRequest, String> {
+        if body.len() > MAX_REQUEST {
+            return Err(format!(
+                "the request has {} bytes; at most {MAX_REQUEST} are accepted",
+                body.len()
+            ));
+        }
+        if body.is_empty() {
+            return Ok(StreamRequest::default());
+        }
+        let value: serde_json::Value = serde_json::from_slice(body)
+            .map_err(|_| "malformed request: not JSON; send {\"action\": \"start\"}".to_string())?;
+        if !value.is_object() {
+            return Err(
+                "malformed request: the body must be a JSON object such as {\"action\": \"start\"}"
+                    .into(),
+            );
+        }
+        serde_json::from_value(value).map_err(|e| {
+            let text = e.to_string();
+            format!(
+                "malformed request: {}",
+                text.chars().take(200).collect::<String>()
+            )
+        })
+    }
+
+    /// The stream a start asks of `sensors` (the cell's, in order), at `default_rate` unless
+    /// the request names one.
+    pub fn spec(&self, sensors: &[String], default_rate: f64) -> Result<StreamSpec, String> {
+        let rate = self.rate.unwrap_or(default_rate);
+        if !(rate.is_finite() && rate > 0.0 && rate <= MAX_RATE_HZ) {
+            return Err(format!(
+                "`rate` {rate} must be a positive number of frames per second up to {MAX_RATE_HZ}"
+            ));
+        }
+        let chosen = match &self.sensors {
+            None => sensors.to_vec(),
+            Some(list) if list.is_empty() => return Err("`sensors` is empty".into()),
+            Some(list) => {
+                if let Some(s) = list.iter().find(|s| !sensors.contains(s)) {
+                    return Err(format!("no sensor {} in the cell", echo(s)));
+                }
+                sensors
+                    .iter()
+                    .filter(|s| list.contains(s))
+                    .cloned()
+                    .collect()
+            }
+        };
+        Ok(StreamSpec {
+            sensors: chosen,
+            rate_hz: rate,
+        })
+    }
+}
+
+/// Counters of one sensor's stream.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct SensorCounts {
+    /// Frames captured.
+    pub frames: u64,
+    /// Frames replaced before they were computed.
+    pub dropped: u64,
+    /// Frames the camera did not deliver in time (the stream goes on; three in a row end it).
+    pub missed: u64,
+    /// Clouds published.
+    pub published: u64,
+    /// Points of the last cloud.
+    pub points: usize,
+    /// Milliseconds from the last published frame's arrival to its publication.
+    pub latency_ms: f64,
+}
+
+/// The stream as health and `status` report it.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct StreamStatus {
+    /// `stopped`, `streaming`, `paused` (a scan runs) or `failed`.
+    pub state: String,
+    /// The running (or last) stream.
+    pub spec: Option<StreamSpec>,
+    /// Per sensor.
+    pub sensors: BTreeMap<String, SensorCounts>,
+    /// Why the last stream ended on its own.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+}
+
+// Health.
+
+/// What `ris/<cell>/health` answers.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct Health {
+    /// `preparing`, `ready`, `scanning` or `stopping`.
+    pub state: String,
+    /// Sensors of the cell.
+    pub sensors: Vec<String>,
+    /// Scans waiting.
+    pub queue: usize,
+    /// Last finished scan id.
+    pub last_scan: Option<String>,
+    /// Last failure.
+    pub last_error: Option<String>,
+    /// Each pair's drivers (empty while preparing).
+    pub pairs: Vec<PairStatus>,
+    /// While preparing: the pairs whose sensor model is ready.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub prepared: Vec<String>,
+    /// The single-shot stream.
+    #[serde(default)]
+    pub stream: StreamStatus,
+}
+
+/// One pair's line in health.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct PairStatus {
+    /// Sensor.
+    pub sensor: String,
+    /// Backend.
+    pub backend: String,
+    /// What it measures with (`structured-light` or `omni`).
+    pub kind: SensorKind,
+    /// Camera id.
+    pub camera: String,
+    /// Projector id.
+    pub projector: String,
+    /// Driver state.
+    #[serde(flatten)]
+    pub driver: DriverState,
+    /// Why this pair cannot scan single-shot (absent when it can).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub single_shot: Option<String>,
+}
+
+/// The state of a pair's drivers, as health reports it.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "state", rename_all = "snake_case")]
+pub enum DriverState {
+    /// Both devices answer.
+    Connected,
+    /// The camera was lost; risd tries to reopen it between scans.
+    Reconnecting {
+        /// The last error.
+        reason: String,
+    },
 }
 
 /// serde_json's error category as a word.
@@ -170,6 +509,53 @@ mod tests {
                 Err(e) => proptest::prop_assert!(e.len() < 400, "{}", e),
             }
         }
+    }
+
+    #[test]
+    fn scan_item_keys_parse_back() {
+        for item in [
+            ScanItem::State,
+            ScanItem::Report,
+            ScanItem::Page,
+            ScanItem::Map,
+            ScanItem::Deviation,
+            ScanItem::Cloud("merged".into()),
+            ScanItem::Cloud("s2".into()),
+        ] {
+            let key = item.key("cell-a", "20261126T101500.000Z-3");
+            assert_eq!(
+                ScanItem::parse(&key),
+                Some(("cell-a".into(), "20261126T101500.000Z-3".into(), item)),
+                "{key}"
+            );
+        }
+        assert_eq!(state_key("c", "i"), "ris/c/scans/i/state");
+        for other in [
+            "ris/c/health",
+            "ris/c/scans/i",
+            "ris/c/scans/i/other",
+            "ris/c/scans/i/cloud",
+            "x/c/scans/i/state",
+        ] {
+            assert!(ScanItem::parse(other).is_none(), "{other}");
+        }
+    }
+
+    #[test]
+    fn modes_are_named_on_the_wire_and_unknown_ones_refused() {
+        let r = ScanRequest::parse(br#"{"mode": "adaptive"}"#).expect("adaptive");
+        assert_eq!(r.mode, Some(ScanMode::Adaptive));
+        let e = ScanRequest::parse(br#"{"mode": "fast"}"#).expect_err("unknown");
+        assert!(e.contains("fast") && e.contains("single-shot"), "{e}");
+        let health: Health = serde_json::from_str(
+            &serde_json::to_string(&Health {
+                state: "ready".into(),
+                ..Health::default()
+            })
+            .expect("json"),
+        )
+        .expect("health parses back");
+        assert_eq!(health.state, "ready");
     }
 
     #[test]

@@ -27,49 +27,11 @@ use serde::Serialize;
 use crate::config::PartConfig;
 use crate::config::SensorKind;
 pub use crate::pair::Pair;
+use crate::protocol::{ScanMode, ScanState};
 use crate::single_shot::OneShot;
 
 /// Radius (mm) within which points of different sensors are duplicates in the merge.
 const MERGE_RADIUS: f64 = 0.5;
-
-/// Progress of a scan, as the daemon publishes it.
-#[derive(Clone, Debug, Serialize)]
-#[serde(tag = "state", rename_all = "snake_case")]
-pub enum ScanState {
-    /// Waiting in the queue.
-    Queued,
-    /// A pair is acquiring.
-    Acquiring {
-        /// Sensor.
-        sensor: String,
-        /// Step of an adaptive scan (`flats`, `advanced projection`, `final projection`, ...).
-        #[serde(skip_serializing_if = "Option::is_none")]
-        phase: Option<String>,
-        /// Frames recorded (of this step, in an adaptive scan).
-        frame: usize,
-        /// Frames of the sequence (of this step).
-        frames: usize,
-    },
-    /// A sensor's capture is being decoded and reconstructed.
-    Reconstructing {
-        /// Sensor.
-        sensor: String,
-    },
-    /// Sensor clouds are merged.
-    Merging,
-    /// The merged cloud is registered to the part's CAD model and its deviations measured.
-    Inspecting {
-        /// Part id.
-        part: String,
-    },
-    /// Finished.
-    Done,
-    /// Failed.
-    Failed {
-        /// Why.
-        reason: String,
-    },
-}
 
 /// Seconds spent in each stage of one sensor.
 #[derive(Clone, Debug, Default, Serialize)]
@@ -109,32 +71,6 @@ pub struct PhaseTiming {
     pub seconds: f64,
     /// Figures of the step.
     pub detail: String,
-}
-
-/// How a scan acquires.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum ScanMode {
-    /// The Gray-code sequence with inverses, unmasked.
-    #[default]
-    Gray,
-    /// The adaptive projection-mask loop (dark, black and shiny surfaces), then the Gray
-    /// sequence under the final mask.
-    Adaptive,
-    /// One frame of the X-point pattern per pair (moving parts; sparser points).
-    SingleShot,
-}
-
-impl ScanMode {
-    /// Parse a request's or command line's mode.
-    pub fn parse(text: &str) -> Option<ScanMode> {
-        match text {
-            "gray" => Some(ScanMode::Gray),
-            "adaptive" => Some(ScanMode::Adaptive),
-            "single-shot" => Some(ScanMode::SingleShot),
-            _ => None,
-        }
-    }
 }
 
 /// Seconds of one sensor's compute stages.

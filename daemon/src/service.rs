@@ -9,39 +9,21 @@ use std::sync::{mpsc, Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Context, Result};
-use serde::Serialize;
 use tokio_util::sync::CancellationToken;
 use zenoh::qos::CongestionControl;
 use zenoh::query::Query;
 use zenoh::{Session, Wait};
 
-use crate::cell::{Cell, PairStatus, ScanJob};
+use crate::cell::{Cell, ScanJob};
 use crate::config::CellConfig;
 use crate::notify;
-use crate::protocol::{echo, health_key, scan_key, state_key, ScanRequest};
-use crate::scan::{self, ScanMode, ScanState};
+use crate::protocol::{
+    cell_key, echo, health_key, scan_key, scans_key, state_key, stream_key, stream_sensor_key,
+    ErrorReply, Health, ScanItem, ScanMode, ScanReply, ScanRequest, ScanState, StreamRequest,
+};
+use crate::scan;
 use crate::store::{self, DataDirLock};
-use crate::stream::{self, StreamControl, StreamRequest};
-
-/// What `ris/<cell>/health` answers.
-#[derive(Clone, Debug, Serialize)]
-pub struct Status {
-    /// `preparing`, `ready`, `scanning` or `stopping`.
-    pub state: String,
-    /// Sensors of the cell.
-    pub sensors: Vec<String>,
-    /// Scans waiting.
-    pub queue: usize,
-    /// Last finished scan id.
-    pub last_scan: Option<String>,
-    /// Last failure.
-    pub last_error: Option<String>,
-    /// Each pair's drivers (empty while preparing).
-    pub pairs: Vec<PairStatus>,
-    /// While preparing: the pairs whose sensor model is ready.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub prepared: Vec<String>,
-}
+use crate::stream::{self, StreamControl};
 
 struct Job {
     scan_id: String,
@@ -78,15 +60,6 @@ impl Heartbeat {
 /// Validate a request against the cell and choose the part to inspect (an index into the
 /// cell's parts); the error is the reply's reason.
 pub fn validate(req: &ScanRequest, config: &CellConfig) -> Result<Option<usize>, String> {
-    match req.mode.as_deref() {
-        None | Some("gray" | "adaptive" | "single-shot") => {}
-        Some(m) => {
-            return Err(format!(
-                "unknown mode {} (gray, adaptive, single-shot)",
-                echo(m)
-            ))
-        }
-    }
     if let Some(list) = &req.sensors {
         if list.is_empty() {
             return Err("`sensors` is empty".into());
@@ -109,7 +82,7 @@ pub fn validate(req: &ScanRequest, config: &CellConfig) -> Result<Option<usize>,
     };
     // A single-shot cloud is sparse and noisier than a Gray-code one: it is inspected only
     // when the request asks for it, never by default.
-    let single = req.mode.as_deref() == Some("single-shot");
+    let single = req.mode == Some(ScanMode::SingleShot);
     match (req.inspect, named, config.parts.len()) {
         (Some(false), Some(_), _) => Err("`part` is named but `inspect` is false".into()),
         (Some(false), None, _) => Ok(None),
@@ -153,9 +126,7 @@ pub fn apply_access(
     ros2: (Vec<String>, Vec<String>),
 ) -> Result<()> {
     let (ros_data, ros_alive) = ros2;
-    let follow: Vec<String> = std::iter::once(format!("ris/{cell}/**"))
-        .chain(ros_data)
-        .collect();
+    let follow: Vec<String> = std::iter::once(cell_key(&cell)).chain(ros_data).collect();
     let alive: Vec<String> = std::iter::once(health_key(cell)).chain(ros_alive).collect();
     let both: Vec<&String> = access.operators.iter().chain(&access.readers).collect();
     let mut subjects = Vec::new();
@@ -174,10 +145,10 @@ pub fn apply_access(
         "default_permission": "deny",
         "rules": [
             {"id": "scan", "permission": "allow", "flows": ["ingress", "egress"],
-             "messages": ["query", "reply"], "key_exprs": [scan_key(cell), stream::stream_key(cell)]},
+             "messages": ["query", "reply"], "key_exprs": [scan_key(cell), stream_key(cell)]},
             {"id": "read", "permission": "allow", "flows": ["ingress", "egress"],
              "messages": ["query", "reply"],
-             "key_exprs": [health_key(cell), format!("ris/{cell}/scans/**"), stream::sensor_key(cell, "*", "point")]},
+             "key_exprs": [health_key(cell), scans_key(cell), stream_sensor_key(cell, "*", "point")]},
             {"id": "follow", "permission": "allow", "flows": ["ingress"],
              "messages": ["declare_subscriber"], "key_exprs": follow},
             {"id": "follow-out", "permission": "allow", "flows": ["egress"],
@@ -285,7 +256,7 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
             return Err(e);
         }
     };
-    let status = Arc::new(Mutex::new(Status {
+    let status = Arc::new(Mutex::new(Health {
         state: "preparing".into(),
         sensors: config.sensors.iter().map(|s| s.name.clone()).collect(),
         queue: 0,
@@ -293,6 +264,7 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
         last_error: None,
         pairs: Vec::new(),
         prepared: Vec::new(),
+        stream: Default::default(),
     }));
     let health = session
         .declare_queryable(health_key(&cell))
@@ -303,16 +275,16 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
         .await
         .map_err(|e| anyhow!("declaring {}: {e}", scan_key(&cell)))?;
     let store_q = session
-        .declare_queryable(format!("ris/{cell}/scans/**"))
+        .declare_queryable(scans_key(&cell))
         .await
-        .map_err(|e| anyhow!("declaring ris/{cell}/scans/**: {e}"))?;
+        .map_err(|e| anyhow!("declaring {}: {e}", scans_key(&cell)))?;
     let streams = Arc::new(StreamControl::default());
     let stream_q = session
-        .declare_queryable(stream::stream_key(&cell))
+        .declare_queryable(stream_key(&cell))
         .await
-        .map_err(|e| anyhow!("declaring {}: {e}", stream::stream_key(&cell)))?;
+        .map_err(|e| anyhow!("declaring {}: {e}", stream_key(&cell)))?;
     let point_q = session
-        .declare_queryable(stream::sensor_key(&cell, "*", "point"))
+        .declare_queryable(stream_sensor_key(&cell, "*", "point"))
         .await
         .map_err(|e| anyhow!("declaring the stream's point queries: {e}"))?;
 
@@ -440,14 +412,12 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
             }
             q = health.recv_async() => {
                 let Ok(q) = q else { break Ok(()) };
-                let json = status
-                    .lock()
-                    .ok()
-                    .and_then(|s| serde_json::to_value(&*s).ok())
-                    .map(|mut v| {
-                        v["stream"] = serde_json::to_value(streams.status()).unwrap_or_default();
-                        v.to_string()
-                    })
+                let health = status.lock().ok().map(|s| Health {
+                    stream: streams.status(),
+                    ..s.clone()
+                });
+                let json = health
+                    .and_then(|h| serde_json::to_string(&h).ok())
                     .unwrap_or_default();
                 if let Err(e) = q.reply(health_key(&cell), json).await {
                     tracing::warn!(error = %e, "health reply failed");
@@ -487,7 +457,7 @@ pub async fn run(config: CellConfig, shutdown: CancellationToken) -> Result<()> 
     Ok(())
 }
 
-fn set_state(status: &Mutex<Status>, state: &str) {
+fn set_state(status: &Mutex<Health>, state: &str) {
     if let Ok(mut s) = status.lock() {
         s.state = state.into();
     }
@@ -495,8 +465,13 @@ fn set_state(status: &Mutex<Status>, state: &str) {
 
 async fn reply_error(q: &Query, key: &str, reason: &str) {
     tracing::warn!(reason, "scan refused");
-    let reply = serde_json::json!({ "error": reason }).to_string();
-    if let Err(e) = q.reply_err(reply).await {
+    let reply = ErrorReply {
+        error: reason.to_string(),
+    };
+    if let Err(e) = q
+        .reply_err(serde_json::to_string(&reply).unwrap_or_default())
+        .await
+    {
         tracing::warn!(%key, error = %e, "error reply failed");
     }
 }
@@ -505,7 +480,7 @@ async fn handle_scan(
     q: &Query,
     config: &CellConfig,
     tx: &mpsc::SyncSender<Job>,
-    status: &Mutex<Status>,
+    status: &Mutex<Health>,
     session: &Session,
     counter: u64,
 ) {
@@ -533,11 +508,7 @@ async fn handle_scan(
                     sensors: r.sensors.clone(),
                     part,
                     tag: r.tag.clone(),
-                    mode: r
-                        .mode
-                        .as_deref()
-                        .and_then(ScanMode::parse)
-                        .unwrap_or_default(),
+                    mode: r.mode.unwrap_or_default(),
                 },
             };
             let sent = tx.try_send(job);
@@ -559,8 +530,14 @@ async fn handle_scan(
         Ok((scan_id, r)) => {
             tracing::info!(%scan_id, tag = ?r.tag.as_deref().map(echo), "scan accepted");
             publish(session, &config.name, &scan_id, &ScanState::Queued);
-            let reply = serde_json::json!({"scan_id": scan_id, "state": "accepted"}).to_string();
-            if let Err(e) = q.reply(&key, reply).await {
+            let reply = ScanReply {
+                scan_id,
+                state: "accepted".into(),
+            };
+            if let Err(e) = q
+                .reply(&key, serde_json::to_string(&reply).unwrap_or_default())
+                .await
+            {
                 tracing::warn!(error = %e, "scan reply failed");
             }
         }
@@ -573,10 +550,10 @@ async fn handle_stream(
     q: &Query,
     config: &CellConfig,
     ready: bool,
-    status: &Mutex<Status>,
+    status: &Mutex<Health>,
     streams: &StreamControl,
 ) {
-    let key = stream::stream_key(&config.name);
+    let key = stream_key(&config.name);
     if q.key_expr().as_str() != key {
         return;
     }
@@ -611,9 +588,9 @@ async fn handle_stream(
                     (
                         s.clone(),
                         serde_json::json!({
-                            "cloud": stream::sensor_key(&config.name, s, "cloud"),
-                            "fused": stream::sensor_key(&config.name, s, "fused"),
-                            "point": stream::sensor_key(&config.name, s, "point"),
+                            "cloud": stream_sensor_key(&config.name, s, "cloud"),
+                            "fused": stream_sensor_key(&config.name, s, "fused"),
+                            "point": stream_sensor_key(&config.name, s, "point"),
                         }),
                     )
                 })
@@ -700,7 +677,7 @@ fn publish(session: &Session, cell: &str, scan_id: &str, state: &ScanState) {
 /// What the scan worker shares with the service.
 struct WorkerContext<'a> {
     session: &'a Session,
-    status: &'a Mutex<Status>,
+    status: &'a Mutex<Health>,
     stopping: &'a AtomicBool,
     heartbeat: &'a Heartbeat,
     cell: &'a str,
@@ -759,7 +736,7 @@ fn worker_loop(rx: mpsc::Receiver<Job>, mut cell: Cell, ctx: &WorkerContext) {
                 if cell
                     .status()
                     .iter()
-                    .any(|p| p.driver != crate::pair::DriverState::Connected)
+                    .any(|p| p.driver != crate::protocol::DriverState::Connected)
                 {
                     cell.reconnect();
                     report_pairs(&cell);
@@ -852,7 +829,7 @@ fn run_job(job: Job, cell_: &mut Cell, ctx: &WorkerContext) {
         Ok((report, dir)) => {
             // The clouds as written, from memory.
             for (name, bytes) in &report.clouds {
-                let key = format!("ris/{cell}/scans/{id}/cloud/{name}");
+                let key = ScanItem::Cloud(name.clone()).key(cell, &id);
                 if let Err(e) = session
                     .put(&key, bytes.as_slice())
                     .congestion_control(CongestionControl::Block)
@@ -867,7 +844,7 @@ fn run_job(job: Job, cell_: &mut Cell, ctx: &WorkerContext) {
             if report.inspection.is_some() {
                 publish_file(
                     session,
-                    &format!("ris/{cell}/scans/{id}/report"),
+                    &ScanItem::Report.key(cell, &id),
                     &dir.join("report.json"),
                 );
             }
@@ -986,7 +963,8 @@ mod tests {
         assert!(err(r#"{"inspect": true}"#, &two).contains("name one"));
         assert!(err(r#"{"part": "roof"}"#, &two).contains("\"roof\""));
         assert!(err(r#"{"part": "door", "inspect": false}"#, &two).contains("inspect"));
-        assert!(err(r#"{"mode": "fast"}"#, &one).contains("fast"));
+        // An unknown mode is refused by the parser (the protocol's `ScanMode`).
+        assert!(ScanRequest::parse(br#"{"mode": "fast"}"#).is_err());
         assert_eq!(validate(&req(r#"{"mode": "single-shot"}"#), &one), Ok(None));
         assert_eq!(
             validate(

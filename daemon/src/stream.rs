@@ -15,137 +15,11 @@ use ris_core::cloud::PointCloud;
 use ris_core::image::GrayImage;
 use ris_core::pattern::Pattern;
 use ris_drivers::Slide;
-use serde::{Deserialize, Serialize};
 use zenoh::qos::CongestionControl;
 use zenoh::{Session, Wait};
 
 use crate::cell::Cell;
-use crate::config::MAX_RATE_HZ;
-use crate::protocol::{echo, MAX_REQUEST};
-
-/// `ris/<cell>/stream`: start, stop or ask about the stream.
-pub fn stream_key(cell: &str) -> String {
-    format!("ris/{cell}/stream")
-}
-
-/// `ris/<cell>/stream/<sensor>/<what>` (`cloud`, `fused`, `point`).
-pub fn sensor_key(cell: &str, sensor: &str, what: &str) -> String {
-    format!("ris/{cell}/stream/{sensor}/{what}")
-}
-
-/// A stream request (a JSON object on the exact stream key).
-#[derive(Clone, Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct StreamRequest {
-    /// `start`, `stop` or `status` (default `status`).
-    #[serde(default)]
-    pub action: Option<String>,
-    /// Frames per second asked of each pair (default the cell's `[single_shot] rate_hz`).
-    #[serde(default)]
-    pub rate: Option<f64>,
-    /// Sensors to stream (default all).
-    #[serde(default)]
-    pub sensors: Option<Vec<String>>,
-}
-
-/// What a start asks for, validated.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct StreamSpec {
-    /// Sensors, in cell order.
-    pub sensors: Vec<String>,
-    /// Frames per second per pair at most.
-    pub rate_hz: f64,
-}
-
-impl StreamRequest {
-    /// Parse a request body: a JSON object of at most [`MAX_REQUEST`] bytes.
-    pub fn parse(body: &[u8]) -> Result<StreamRequest, String> {
-        if body.len() > MAX_REQUEST {
-            return Err(format!(
-                "the request has {} bytes; at most {MAX_REQUEST} are accepted",
-                body.len()
-            ));
-        }
-        if body.is_empty() {
-            return Ok(StreamRequest::default());
-        }
-        let value: serde_json::Value = serde_json::from_slice(body)
-            .map_err(|_| "malformed request: not JSON; send {\"action\": \"start\"}".to_string())?;
-        if !value.is_object() {
-            return Err(
-                "malformed request: the body must be a JSON object such as {\"action\": \"start\"}"
-                    .into(),
-            );
-        }
-        serde_json::from_value(value).map_err(|e| {
-            let text = e.to_string();
-            format!(
-                "malformed request: {}",
-                text.chars().take(200).collect::<String>()
-            )
-        })
-    }
-
-    /// The stream a start asks of `sensors` (the cell's, in order), at `default_rate` unless
-    /// the request names one.
-    pub fn spec(&self, sensors: &[String], default_rate: f64) -> Result<StreamSpec, String> {
-        let rate = self.rate.unwrap_or(default_rate);
-        if !(rate.is_finite() && rate > 0.0 && rate <= MAX_RATE_HZ) {
-            return Err(format!(
-                "`rate` {rate} must be a positive number of frames per second up to {MAX_RATE_HZ}"
-            ));
-        }
-        let chosen = match &self.sensors {
-            None => sensors.to_vec(),
-            Some(list) if list.is_empty() => return Err("`sensors` is empty".into()),
-            Some(list) => {
-                if let Some(s) = list.iter().find(|s| !sensors.contains(s)) {
-                    return Err(format!("no sensor {} in the cell", echo(s)));
-                }
-                sensors
-                    .iter()
-                    .filter(|s| list.contains(s))
-                    .cloned()
-                    .collect()
-            }
-        };
-        Ok(StreamSpec {
-            sensors: chosen,
-            rate_hz: rate,
-        })
-    }
-}
-
-/// Counters of one sensor's stream.
-#[derive(Clone, Debug, Default, Serialize)]
-pub struct SensorCounts {
-    /// Frames captured.
-    pub frames: u64,
-    /// Frames replaced before they were computed.
-    pub dropped: u64,
-    /// Frames the camera did not deliver in time (the stream goes on; three in a row end it).
-    pub missed: u64,
-    /// Clouds published.
-    pub published: u64,
-    /// Points of the last cloud.
-    pub points: usize,
-    /// Milliseconds from the last published frame's arrival to its publication.
-    pub latency_ms: f64,
-}
-
-/// The stream as health and `status` report it.
-#[derive(Clone, Debug, Default, Serialize)]
-pub struct StreamStatus {
-    /// `stopped`, `streaming`, `paused` (a scan runs) or `failed`.
-    pub state: String,
-    /// The running (or last) stream.
-    pub spec: Option<StreamSpec>,
-    /// Per sensor.
-    pub sensors: BTreeMap<String, SensorCounts>,
-    /// Why the last stream ended on its own.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub error: Option<String>,
-}
+use crate::protocol::{echo, stream_sensor_key, SensorCounts, StreamSpec, StreamStatus};
 
 /// The latest computed frame of a sensor, for the pixel query.
 pub struct Latest {
@@ -537,7 +411,7 @@ fn stream<J>(
                             Err(e) => {
                                 let e = e.context(format!("sensor {}: streaming", p.name));
                                 p.note_failure(&e);
-                                let lost = p.state != crate::pair::DriverState::Connected;
+                                let lost = p.state != crate::protocol::DriverState::Connected;
                                 misses[k] += 1;
                                 control.count(generation, &p.name, |c| c.missed += 1);
                                 // A lost camera ends the stream at once (risd reopens it between
@@ -650,7 +524,7 @@ fn publish_frame(
         },
     );
     for (what, bytes) in [("cloud", ply), ("fused", picture)] {
-        let key = sensor_key(out.cell, name, what);
+        let key = stream_sensor_key(out.cell, name, what);
         out.session
             .put(&key, bytes)
             .attachment(attachment.clone())
@@ -670,6 +544,7 @@ fn publish_frame(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::protocol::StreamRequest;
 
     #[test]
     fn start_requests_are_checked() {

@@ -16,7 +16,7 @@ use ris_core::sensor::Reconstructor;
 use ris_core::sim::{Scene, Simulator};
 use ris_daemon::cell::{Cell, ScanJob};
 use ris_daemon::config::CellConfig;
-use ris_daemon::scan::ScanMode;
+use ris_daemon::protocol::ScanMode;
 use ris_drivers::mock::simulated_pair;
 use ris_drivers::sequence::{acquire, SequenceParams};
 use ris_drivers::Slide;
@@ -69,7 +69,7 @@ fn adaptive_scans_in_the_cell_match_the_sprayed_part_per_material() {
         };
         let (report, dir) = cell
             .scan(&job, data.path(), id, &|| false, &|s| {
-                if let ris_daemon::scan::ScanState::Acquiring { phase: Some(p), .. } = s {
+                if let ris_daemon::protocol::ScanState::Acquiring { phase: Some(p), .. } = s {
                     let mut v = phases.lock().expect("phases");
                     if v.last() != Some(p) {
                         v.push(p.clone());

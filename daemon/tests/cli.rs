@@ -2310,3 +2310,57 @@ fn verify_certifies_an_acceptance_set_and_refuses_bad_input() {
     assert!(!o.status.success() && e.contains("junk.ply"), "{e}");
     assert!(!bad_out.exists());
 }
+
+/// A client pointed at the wrong place is told what to change in its own words: an endpoint
+/// without its protocol names `--connect` and the form; a port where no risd listens says so.
+/// No library's source path, backtrace or log line reaches the user.
+#[test]
+fn client_commands_say_what_to_change_when_the_daemon_cannot_be_reached() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .expect("port");
+    let nobody = format!("tcp/127.0.0.1:{port}");
+    let out = dir.path().join("out");
+    for (connect, needles) in [
+        (
+            "127.0.0.1:7447",
+            vec!["--connect", "tcp/127.0.0.1:7447", "no protocol"],
+        ),
+        ("tcp/127.0.0.1", vec!["--connect", "no port"]),
+        (
+            nobody.as_str(),
+            vec!["no risd answers", nobody.as_str(), "--connect"],
+        ),
+    ] {
+        for command in ["scan", "stream"] {
+            let o = Command::new(env!("CARGO_BIN_EXE_ris"))
+                .args([command, "--connect", connect, "--out", s(&out)])
+                .args(if command == "stream" {
+                    &["--frames", "1"][..]
+                } else {
+                    &[]
+                })
+                .env_remove("RIS_LOG")
+                .env("RUST_BACKTRACE", "0")
+                .output()
+                .expect("run ris");
+            let err = stderr(&o);
+            assert!(!o.status.success(), "{command} {connect}: {err}");
+            for n in &needles {
+                assert!(
+                    err.contains(n),
+                    "{command} {connect}: {n:?} missing in {err}"
+                );
+            }
+            for noise in ["registry/src", ".rs:", "Json5Err", "WARN", "INFO"] {
+                assert!(
+                    !err.contains(noise),
+                    "{command} {connect}: {noise:?} in {err}"
+                );
+            }
+            assert!(!out.exists(), "{command} {connect} wrote output");
+        }
+    }
+}

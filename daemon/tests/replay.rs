@@ -2,6 +2,8 @@
 //! `config/replay-cell.toml` (every pair a `replay` backend serving the recorded capture set
 //! through the same sequencer, decoder and merge) and gives the recorded scan's clouds exactly.
 
+mod common;
+
 use std::path::Path;
 use std::process::Command;
 
@@ -22,6 +24,8 @@ fn a_replayed_scan_equals_the_recorded_scan() {
             "--data-dir",
         ])
         .arg(&recording)
+        .arg("--cache-dir")
+        .arg(common::shared_cache())
         .output()
         .expect("risd");
     assert!(

@@ -9,7 +9,7 @@ use std::process::Command;
 use std::time::Duration;
 
 mod common;
-use common::output_within;
+use common::{output_within, shared_cache};
 
 const CHROMIUM: &str = "/usr/bin/chromium";
 
@@ -61,6 +61,8 @@ fn scan_dir(data: &Path) -> PathBuf {
             .arg("--once")
             .arg("--data-dir")
             .arg(data)
+            .arg("--cache-dir")
+            .arg(shared_cache())
             .env("RIS_LOG", "warn"),
         Duration::from_secs(300),
     );

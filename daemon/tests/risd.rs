@@ -354,7 +354,7 @@ fn single_shot_scan(
         "mock",
         &mut pairs,
         ScanOptions {
-            mode: ris_daemon::scan::ScanMode::SingleShot,
+            mode: ris_daemon::protocol::ScanMode::SingleShot,
             part,
             ..ScanOptions::default()
         },
@@ -494,7 +494,7 @@ fn a_fault_in_one_pair_fails_that_scan_and_the_next_succeeds() {
         faults.at(at + k, Fault::MissedTrigger);
     }
     let states = std::sync::Mutex::new(Vec::new());
-    let record = |s: &ris_daemon::scan::ScanState| {
+    let record = |s: &ris_daemon::protocol::ScanState| {
         if let Ok(mut v) = states.lock() {
             v.push(serde_json::to_value(s).expect("json"));
         }
@@ -589,8 +589,8 @@ fn a_fault_in_one_pair_fails_that_scan_and_the_next_succeeds() {
         "d",
         &|| false,
         &|s| match s {
-            ris_daemon::scan::ScanState::Merging => panic!("injected fault in the merge"),
-            ris_daemon::scan::ScanState::Failed { reason } => {
+            ris_daemon::protocol::ScanState::Merging => panic!("injected fault in the merge"),
+            ris_daemon::protocol::ScanState::Failed { reason } => {
                 *failed.lock().expect("lock") = Some(reason.clone())
             }
             _ => {}
@@ -615,7 +615,7 @@ fn a_fault_in_one_pair_fails_that_scan_and_the_next_succeeds() {
         "b",
         &|| false,
         &|s| {
-            if let ris_daemon::scan::ScanState::Failed { reason } = s {
+            if let ris_daemon::protocol::ScanState::Failed { reason } = s {
                 *failed.lock().expect("lock") = Some(reason.clone())
             }
         },

@@ -151,6 +151,8 @@ fn sigkill_mid_scan_leaves_no_scan_that_looks_complete() {
     let mut risd = Command::new(env!("CARGO_BIN_EXE_risd"))
         .args(["--once", "--data-dir"])
         .arg(data.path())
+        .arg("--cache-dir")
+        .arg(common::shared_cache())
         .env("RIS_LOG", "info")
         .env("NO_COLOR", "1")
         .stderr(Stdio::piped())

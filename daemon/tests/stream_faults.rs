@@ -7,7 +7,8 @@ use std::time::{Duration, Instant};
 
 use ris_daemon::cell::Cell;
 use ris_daemon::config::CellConfig;
-use ris_daemon::stream::{self, Publish, StreamControl, StreamEnd, StreamSpec};
+use ris_daemon::protocol::StreamSpec;
+use ris_daemon::stream::{self, Publish, StreamControl, StreamEnd};
 use ris_drivers::mock::Fault;
 use zenoh::Wait;
 
@@ -59,7 +60,7 @@ fn a_missed_frame_is_skipped_and_a_lost_camera_ends_the_stream_with_its_reason()
         "a failed stream is not retried by itself"
     );
     assert!(
-        cell.status()[0].driver != ris_daemon::pair::DriverState::Connected,
+        cell.status()[0].driver != ris_daemon::protocol::DriverState::Connected,
         "the pair is marked as reconnecting"
     );
 

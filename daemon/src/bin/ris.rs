@@ -416,7 +416,7 @@ enum Command {
         #[command(flatten)]
         daemon: DaemonArgs,
         /// Scan mode (gray, adaptive, single-shot); the daemon's default when omitted.
-        #[arg(long)]
+        #[arg(long, value_parser = ["gray", "adaptive", "single-shot"])]
         mode: Option<String>,
         /// Sensors to scan (repeat; default all).
         #[arg(long = "sensor")]
@@ -616,7 +616,7 @@ fn verdict_exit_code(verdict: &str) -> Option<i32> {
 }
 
 fn main() -> Result<()> {
-    ris_daemon::logging::init("info");
+    ris_daemon::logging::init("info", "error");
     let cli = Cli::parse();
     match cli.command {
         Command::Patterns {
@@ -1002,7 +1002,9 @@ fn main() -> Result<()> {
             let r = commands::scan::run(&commands::scan::ScanArgs {
                 connect,
                 cell,
-                mode,
+                mode: mode
+                    .as_deref()
+                    .and_then(ris_daemon::protocol::ScanMode::parse),
                 sensors,
                 inspect: no_inspect.then_some(false),
                 part,

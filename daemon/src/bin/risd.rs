@@ -7,7 +7,8 @@ use anyhow::{Context, Result};
 use clap::Parser;
 use ris_daemon::cell::{Cell, ScanJob};
 use ris_daemon::config::{CellConfig, MOCK_CELL};
-use ris_daemon::scan::{self, ScanMode};
+use ris_daemon::protocol::ScanMode;
+use ris_daemon::scan;
 
 #[derive(Parser)]
 #[command(name = "risd", version, about = "RIS cell daemon")]
@@ -118,7 +119,7 @@ fn serve(config: CellConfig) -> Result<()> {
 }
 
 fn main() -> Result<()> {
-    ris_daemon::logging::init("info");
+    ris_daemon::logging::init("info", "warn");
     let args = Args::parse();
     if let Some(path) = &args.check_config {
         let config = CellConfig::load(path)?;

@@ -5,7 +5,10 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::{anyhow, bail, Context, Result};
-use serde_json::Value;
+use serde::de::DeserializeOwned;
+use serde::Serialize;
+
+use crate::protocol::ErrorReply;
 
 /// A client session to `connect`, logged in as the user of `credentials` (user, file whose
 /// first line is the password) when the cell has `[zenoh.access]`.
@@ -24,35 +27,44 @@ pub async fn open(
         }
         None => None,
     };
+    if connect.is_empty() {
+        bail!("--connect: give the daemon's endpoint, e.g. tcp/127.0.0.1:7447");
+    }
+    crate::config::check_endpoints("command line", "--connect", connect)?;
     let config = crate::service::client_config(
         connect,
         password.as_ref().map(|(u, p)| (u.as_str(), p.as_str())),
     )?;
-    zenoh::open(config)
-        .await
-        .map_err(|e| anyhow!("connecting to {connect:?}: {e}"))
+    zenoh::open(config).await.map_err(|_| {
+        anyhow!(
+            "no risd answers at {}: start it there (risd, or systemctl start risd), or give its endpoint with --connect",
+            connect.join(", ")
+        )
+    })
 }
 
-/// Ask `key` with the JSON `body`: the reply's JSON, or the daemon's reason as the error.
-pub async fn ask(session: &zenoh::Session, key: &str, body: &Value) -> Result<Value> {
+/// Ask `key` with `body` as JSON: the reply, or the daemon's reason as the error.
+pub async fn ask<Req: Serialize, Rep: DeserializeOwned>(
+    session: &zenoh::Session,
+    key: &str,
+    body: &Req,
+) -> Result<Rep> {
     let replies = session
         .get(key)
-        .payload(body.to_string())
+        .payload(serde_json::to_string(body)?)
         .timeout(Duration::from_secs(10))
         .await
         .map_err(|e| anyhow!("asking {key}: {e}"))?;
-    let reply = replies
-        .recv_async()
-        .await
-        .map_err(|_| anyhow!("no reply from {key}: is risd for this cell reachable?"))?;
+    let reply = replies.recv_async().await.map_err(|_| {
+        anyhow!("no reply from {key}: no risd serves this cell there (check --cell and --connect)")
+    })?;
     match reply.result() {
         Ok(sample) => serde_json::from_slice(&sample.payload().to_bytes())
-            .context("the daemon's reply is not JSON"),
+            .with_context(|| format!("the daemon's reply on {key} is not what this ris expects (a risd of another version?)")),
         Err(err) => {
             let text = String::from_utf8_lossy(&err.payload().to_bytes()).into_owned();
-            let reason = serde_json::from_str::<Value>(&text)
-                .ok()
-                .and_then(|v| v["error"].as_str().map(str::to_string))
+            let reason = serde_json::from_str::<ErrorReply>(&text)
+                .map(|r| r.error)
                 .unwrap_or(text);
             bail!("risd refused: {reason}")
         }

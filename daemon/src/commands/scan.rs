@@ -10,6 +10,8 @@ use std::time::Duration;
 use anyhow::{anyhow, bail, Context, Result};
 use serde_json::Value;
 
+use crate::protocol::{scans_key, ScanItem, ScanMode, ScanReply, ScanRequest};
+
 /// What to ask for and where to write it.
 pub struct ScanArgs {
     /// Zenoh endpoints of the daemon (e.g. `tcp/127.0.0.1:7447`).
@@ -17,7 +19,7 @@ pub struct ScanArgs {
     /// Cell name.
     pub cell: String,
     /// Request fields (SPEC §12); `None` leaves the daemon's default.
-    pub mode: Option<String>,
+    pub mode: Option<ScanMode>,
     /// Sensors to scan (empty: all).
     pub sensors: Vec<String>,
     /// Inspect (`Some(false)`: do not).
@@ -47,32 +49,19 @@ pub struct Received {
     pub verdict: Option<String>,
 }
 
-/// The request payload of `args`.
-fn request(args: &ScanArgs) -> Value {
-    let mut req = serde_json::Map::new();
-    if let Some(m) = &args.mode {
-        req.insert("mode".into(), m.clone().into());
+/// The request of `args`.
+fn request(args: &ScanArgs) -> ScanRequest {
+    ScanRequest {
+        mode: args.mode,
+        sensors: (!args.sensors.is_empty()).then(|| args.sensors.clone()),
+        inspect: args.inspect,
+        part: args.part.clone(),
+        tag: args.tag.clone(),
     }
-    if !args.sensors.is_empty() {
-        req.insert("sensors".into(), args.sensors.clone().into());
-    }
-    if let Some(i) = args.inspect {
-        req.insert("inspect".into(), i.into());
-    }
-    if let Some(p) = &args.part {
-        req.insert("part".into(), p.clone().into());
-    }
-    if let Some(t) = &args.tag {
-        req.insert("tag".into(), t.clone().into());
-    }
-    Value::Object(req)
 }
 
 /// Run the scan on tokio's multi-thread runtime (Zenoh needs it).
 pub fn run(args: &ScanArgs) -> Result<Received> {
-    if args.connect.is_empty() {
-        bail!("--connect: give the daemon's endpoint, e.g. tcp/127.0.0.1:7447");
-    }
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
@@ -108,13 +97,11 @@ enum Item {
 }
 
 fn classify(key: &str, payload: Vec<u8>) -> Option<(String, Item)> {
-    let parts: Vec<&str> = key.split('/').collect();
-    // ris / <cell> / scans / <id> / ...
-    let id = (*parts.get(3)?).to_string();
-    match &parts[4..] {
-        ["state"] => Some((id, Item::State(serde_json::from_slice(&payload).ok()?))),
-        ["cloud", name] => Some((id, Item::Cloud((*name).to_string(), payload))),
-        ["report"] => Some((id, Item::Report(payload))),
+    let (_, id, item) = ScanItem::parse(key)?;
+    match item {
+        ScanItem::State => Some((id, Item::State(serde_json::from_slice(&payload).ok()?))),
+        ScanItem::Cloud(name) => Some((id, Item::Cloud(name, payload))),
+        ScanItem::Report => Some((id, Item::Report(payload))),
         _ => None,
     }
 }
@@ -124,16 +111,14 @@ async fn scan(args: &ScanArgs) -> Result<Arrived> {
     let cell = &args.cell;
     // Subscribe before asking, so that no publication of the scan is missed.
     let sub = session
-        .declare_subscriber(format!("ris/{cell}/scans/**"))
+        .declare_subscriber(scans_key(cell))
         .await
-        .map_err(|e| anyhow!("subscribing to ris/{cell}/scans/**: {e}"))?;
-    let v = super::client::ask(&session, &format!("ris/{cell}/scan"), &request(args))
-        .await
-        .with_context(|| format!("asking cell {cell:?} at {:?} for a scan", args.connect))?;
-    let scan_id = v["scan_id"]
-        .as_str()
-        .map(str::to_string)
-        .ok_or_else(|| anyhow!("the daemon's reply has no scan_id: {v}"))?;
+        .map_err(|e| anyhow!("subscribing to {}: {e}", scans_key(cell)))?;
+    let reply: ScanReply =
+        super::client::ask(&session, &crate::protocol::scan_key(cell), &request(args))
+            .await
+            .with_context(|| format!("asking cell {cell:?} at {:?} for a scan", args.connect))?;
+    let scan_id = reply.scan_id;
     tracing::info!(%scan_id, "scan accepted");
     let pb = crate::progress::bar(0, "queued");
     let mut frames: BTreeMap<String, (u64, u64)> = BTreeMap::new();
@@ -211,12 +196,12 @@ async fn scan(args: &ScanArgs) -> Result<Arrived> {
         if clouds.contains_key(name) {
             continue;
         }
-        let key = format!("ris/{cell}/scans/{scan_id}/cloud/{name}");
+        let key = ScanItem::Cloud(name.clone()).key(cell, &scan_id);
         let bytes = fetch(&session, &key).await?;
         clouds.insert(name.clone(), bytes);
     }
     if inspected && report.is_none() {
-        report = Some(fetch(&session, &format!("ris/{cell}/scans/{scan_id}/report")).await?);
+        report = Some(fetch(&session, &ScanItem::Report.key(cell, &scan_id)).await?);
     }
     drop(sub);
     session
@@ -300,14 +285,20 @@ mod tests {
             out: PathBuf::from("out"),
             timeout: Duration::from_secs(1),
         };
-        assert_eq!(request(&args).to_string(), "{}");
+        let json = |a: &ScanArgs| serde_json::to_value(request(a)).expect("json");
+        assert_eq!(json(&args).to_string(), "{}");
         args.sensors = vec!["s1".into(), "s3".into()];
         args.inspect = Some(false);
         args.tag = Some("shift 2".into());
-        let r = request(&args);
+        let r = json(&args);
         assert_eq!(r["sensors"], serde_json::json!(["s1", "s3"]));
         assert_eq!(r["inspect"], false);
         assert_eq!(r["tag"], "shift 2");
         assert!(r.get("mode").is_none() && r.get("part").is_none());
+        // What the client sends is what the daemon parses.
+        args.mode = Some(ScanMode::SingleShot);
+        let body = serde_json::to_vec(&request(&args)).expect("body");
+        assert_eq!(ScanRequest::parse(&body).expect("parsed"), request(&args));
+        assert_eq!(json(&args)["mode"], "single-shot");
     }
 }

@@ -8,6 +8,7 @@ use std::time::{Duration, Instant, SystemTime};
 use anyhow::{anyhow, bail, Context, Result};
 
 use super::client::ask;
+use crate::protocol::{stream_sensor_key, StreamRequest};
 use serde_json::Value;
 
 /// What to stream and for how long.
@@ -114,18 +115,16 @@ async fn stream(args: &StreamArgs) -> Result<BTreeMap<String, Received>> {
     let session = super::client::open(&args.connect, args.credentials.as_ref()).await?;
     let cell = &args.cell;
     let sub = session
-        .declare_subscriber(format!("ris/{cell}/stream/*/*"))
+        .declare_subscriber(stream_sensor_key(cell, "*", "*"))
         .await
-        .map_err(|e| anyhow!("subscribing to ris/{cell}/stream/*/*: {e}"))?;
-    let mut request = serde_json::json!({"action": "start"});
-    if !args.sensors.is_empty() {
-        request["sensors"] = args.sensors.clone().into();
-    }
-    if let Some(r) = args.rate {
-        request["rate"] = r.into();
-    }
-    let key = crate::stream::stream_key(cell);
-    let started = ask(&session, &key, &request).await?;
+        .map_err(|e| anyhow!("subscribing to {}: {e}", stream_sensor_key(cell, "*", "*")))?;
+    let request = StreamRequest {
+        action: Some("start".into()),
+        rate: args.rate,
+        sensors: (!args.sensors.is_empty()).then(|| args.sensors.clone()),
+    };
+    let key = crate::protocol::stream_key(cell);
+    let started: Value = ask(&session, &key, &request).await?;
     let sensors: Vec<String> = started["sensors"]
         .as_array()
         .map(|a| {
@@ -164,8 +163,11 @@ async fn stream(args: &StreamArgs) -> Result<BTreeMap<String, Received>> {
             Ok(Err(e)) => break Err(anyhow!("the subscription ended: {e}")),
             Err(_) => {
                 // No frame for a while: ask the daemon how the stream is.
-                if let Ok(st) = ask(&session, &key, &serde_json::json!({"action": "status"})).await
-                {
+                let status = StreamRequest {
+                    action: Some("status".into()),
+                    ..StreamRequest::default()
+                };
+                if let Ok(st) = ask::<_, Value>(&session, &key, &status).await {
                     match st["state"].as_str() {
                         Some("failed") => {
                             break Err(anyhow!(
@@ -247,7 +249,11 @@ async fn stream(args: &StreamArgs) -> Result<BTreeMap<String, Received>> {
     };
     pb.finish_and_clear();
     if !args.keep_running {
-        if let Err(e) = ask(&session, &key, &serde_json::json!({"action": "stop"})).await {
+        let stop = StreamRequest {
+            action: Some("stop".into()),
+            ..StreamRequest::default()
+        };
+        if let Err(e) = ask::<_, Value>(&session, &key, &stop).await {
             tracing::warn!(error = %format!("{e:#}"), "stopping the stream");
         }
     }

@@ -64,6 +64,11 @@ pub fn free_port() -> u16 {
         .expect("a free port on 127.0.0.1")
 }
 
+/// The prepared pairs' cache shared by the tests' risd processes.
+pub fn shared_cache() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("prepared-pairs")
+}
+
 /// A risd process whose stderr is collected on a thread; killed on drop.
 pub struct Risd {
     child: Child,
@@ -77,11 +82,17 @@ impl Risd {
         Risd::start_env(args, &[])
     }
 
-    /// Start `risd ARGS` with extra environment variables (e.g. `DISPLAY`).
+    /// Start `risd ARGS` with extra environment variables (e.g. `DISPLAY`). Unless ARGS name
+    /// one, the prepared pairs' cache is the one every test's risd shares, so only the first
+    /// start of a cell prepares its pairs from scratch.
     pub fn start_env(args: &[&std::ffi::OsStr], env: &[(&str, &str)]) -> Risd {
         use std::io::BufRead;
-        let mut child = Command::new(env!("CARGO_BIN_EXE_risd"))
-            .args(args)
+        let mut command = Command::new(env!("CARGO_BIN_EXE_risd"));
+        command.args(args);
+        if !args.iter().any(|a| *a == "--cache-dir") {
+            command.arg("--cache-dir").arg(shared_cache());
+        }
+        let mut child = command
             .envs(env.iter().copied())
             .env("RIS_LOG", "info")
             .env("NO_COLOR", "1")
@@ -299,7 +310,7 @@ pub fn states(
 ) {
     let (tx, rx) = std::sync::mpsc::channel();
     let sub = session
-        .declare_subscriber(format!("ris/{cell}/scans/*/state"))
+        .declare_subscriber(ris_daemon::protocol::scan_states_key(cell))
         .callback(move |s| {
             let id = s
                 .key_expr()

@@ -395,6 +395,34 @@ pub enum Backend {
     },
 }
 
+impl Backend {
+    /// The name a configuration gives it.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Backend::Mock => "mock",
+            Backend::Aravis => "aravis",
+            Backend::V4l2 => "v4l2",
+            Backend::Replay { .. } => "replay",
+        }
+    }
+}
+
+/// The hardware backends this build has, as the end of a sentence.
+fn built_backends() -> String {
+    let mut on = Vec::new();
+    if cfg!(feature = "aravis") && cfg!(feature = "projector") {
+        on.push("aravis");
+    }
+    if cfg!(feature = "v4l2") && cfg!(feature = "projector") {
+        on.push("v4l2");
+    }
+    if on.is_empty() {
+        String::new()
+    } else {
+        format!(" and {}", on.join(", "))
+    }
+}
+
 /// What a sensor measures with.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -1006,8 +1034,45 @@ impl CellConfig {
         groups.into_iter().collect()
     }
 
-    /// Check that every referenced file exists and parses (scenes, sensor files, CAD, datums).
+    /// Refuse backends this build of risd cannot run (hardware backends are cargo features),
+    /// naming the feature to build with.
+    pub fn check_build(&self) -> Result<()> {
+        for s in &self.sensors {
+            let needs: &[(&str, bool)] = match s.backend {
+                Backend::Aravis => &[
+                    ("aravis", cfg!(feature = "aravis")),
+                    ("projector", cfg!(feature = "projector")),
+                ],
+                Backend::V4l2 => &[
+                    ("v4l2", cfg!(feature = "v4l2")),
+                    ("projector", cfg!(feature = "projector")),
+                ],
+                Backend::Mock | Backend::Replay { .. } => &[],
+            };
+            let missing: Vec<&str> = needs
+                .iter()
+                .filter(|(_, on)| !on)
+                .map(|(f, _)| *f)
+                .collect();
+            if !missing.is_empty() {
+                bail!(
+                    "sensor {}: backend {:?} needs a risd built with the {} feature{} (cargo build --release --features {}); this build runs the mock and replay backends{}",
+                    s.name,
+                    s.backend.name(),
+                    missing.join(" and "),
+                    if missing.len() > 1 { "s" } else { "" },
+                    missing.join(","),
+                    built_backends()
+                );
+            }
+        }
+        Ok(())
+    }
+
+    /// Check that this build can run every backend ([`CellConfig::check_build`]) and that every
+    /// referenced file exists and parses (scenes, sensor files, recordings, CAD, datums).
     pub fn check_files(&self) -> Result<()> {
+        self.check_build()?;
         for s in &self.sensors {
             if s.kind == SensorKind::Omni {
                 match (&s.scene, &s.sensor_file) {
@@ -1028,6 +1093,14 @@ impl CellConfig {
                     .with_context(|| format!("sensor {}: scene", s.name))?;
             }
             if let Backend::Replay { recording } = &s.backend {
+                if !recording.join("capture.toml").is_file() {
+                    bail!(
+                        "sensor {}: no recording at {} (replay serves a capture set kept by a scan: `risd --once --keep-captures --data-dir DIR --scan-id ID` keeps it under DIR/scans/ID/captures/{})",
+                        s.name,
+                        recording.display(),
+                        s.name
+                    );
+                }
                 ris_core::capture::CaptureSet::load(recording)
                     .with_context(|| format!("sensor {}: recording", s.name))?;
             }

@@ -104,6 +104,10 @@ pub struct ScanReply {
     pub scan_id: String,
     /// `accepted`.
     pub state: String,
+    /// The sensors the scan will acquire, in order (a client's progress knows its total from
+    /// the start).
+    #[serde(default)]
+    pub sensors: Vec<String>,
 }
 
 /// The body of every refusal (an error reply): what to change.

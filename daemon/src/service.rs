@@ -126,7 +126,7 @@ pub fn apply_access(
     ros2: (Vec<String>, Vec<String>),
 ) -> Result<()> {
     let (ros_data, ros_alive) = ros2;
-    let follow: Vec<String> = std::iter::once(cell_key(&cell)).chain(ros_data).collect();
+    let follow: Vec<String> = std::iter::once(cell_key(cell)).chain(ros_data).collect();
     let alive: Vec<String> = std::iter::once(health_key(cell)).chain(ros_alive).collect();
     let both: Vec<&String> = access.operators.iter().chain(&access.readers).collect();
     let mut subjects = Vec::new();
@@ -533,6 +533,10 @@ async fn handle_scan(
             let reply = ScanReply {
                 scan_id,
                 state: "accepted".into(),
+                sensors: r
+                    .sensors
+                    .clone()
+                    .unwrap_or_else(|| config.sensors.iter().map(|s| s.name.clone()).collect()),
             };
             if let Err(e) = q
                 .reply(&key, serde_json::to_string(&reply).unwrap_or_default())

@@ -60,6 +60,21 @@ fn request(args: &ScanArgs) -> ScanRequest {
     }
 }
 
+/// The progress bar's (length, position) in frames: every planned sensor counts with its own
+/// sequence once it reported one, else with the longest reported so far, so the total is known
+/// from the first frame and does not grow as sensors start.
+fn progress(planned: &[String], frames: &BTreeMap<String, (u64, u64)>) -> (u64, u64) {
+    let typical = frames.values().map(|f| f.1).max().unwrap_or(0);
+    let mut names: Vec<&String> = planned.iter().collect();
+    names.extend(frames.keys().filter(|k| !planned.contains(k)));
+    let length = names
+        .iter()
+        .map(|n| frames.get(*n).map_or(typical, |f| f.1))
+        .sum();
+    let position = frames.values().map(|f| f.0.min(f.1)).sum();
+    (length, position)
+}
+
 /// Run the scan on tokio's multi-thread runtime (Zenoh needs it).
 pub fn run(args: &ScanArgs) -> Result<Received> {
     let runtime = tokio::runtime::Builder::new_multi_thread()
@@ -119,6 +134,7 @@ async fn scan(args: &ScanArgs) -> Result<Arrived> {
             .await
             .with_context(|| format!("asking cell {cell:?} at {:?} for a scan", args.connect))?;
     let scan_id = reply.scan_id;
+    let planned = reply.sensors;
     tracing::info!(%scan_id, "scan accepted");
     let pb = crate::progress::bar(0, "queued");
     let mut frames: BTreeMap<String, (u64, u64)> = BTreeMap::new();
@@ -156,8 +172,9 @@ async fn scan(args: &ScanArgs) -> Result<Arrived> {
                     );
                     pb.set_message(format!("acquiring {sensor}"));
                     frames.insert(sensor, f);
-                    pb.set_length(frames.values().map(|f| f.1).sum());
-                    pb.set_position(frames.values().map(|f| f.0).sum());
+                    let (length, position) = progress(&planned, &frames);
+                    pb.set_length(length);
+                    pb.set_position(position);
                 }
                 "reconstructing" => pb.set_message(format!(
                     "reconstructing {}",
@@ -269,6 +286,29 @@ mod tests {
         assert!(classify("ris/mock/scans/a1/state", b"not json".to_vec()).is_none());
         assert!(classify("ris/mock/scans/a1/other", vec![]).is_none());
         assert!(classify("ris/mock/health", vec![]).is_none());
+    }
+
+    #[test]
+    fn the_progress_total_is_known_from_the_first_frame() {
+        let planned: Vec<String> = ["s1", "s2", "s3", "s4"].map(String::from).to_vec();
+        let mut frames = BTreeMap::new();
+        let mut lengths = Vec::new();
+        for (sensor, frame) in [
+            ("s1", 1),
+            ("s3", 1),
+            ("s1", 42),
+            ("s3", 42),
+            ("s2", 5),
+            ("s4", 42),
+            ("s2", 42),
+        ] {
+            frames.insert(sensor.to_string(), (frame, 42));
+            let (length, position) = progress(&planned, &frames);
+            assert!(position <= length);
+            lengths.push(length);
+        }
+        assert!(lengths.iter().all(|&l| l == 168), "{lengths:?}");
+        assert_eq!(progress(&planned, &frames), (168, 168));
     }
 
     #[test]

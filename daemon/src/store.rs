@@ -7,6 +7,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, Context, Result};
 
+use crate::protocol::ScanItem;
+
 /// Exclusive ownership of a data directory (an advisory lock on `<data_dir>/risd.lock`, held
 /// until dropped): a second risd on the same directory refuses to start instead of sweeping
 /// away the first one's running scan.
@@ -125,27 +127,25 @@ pub fn stored_items(cell: &str, data_dir: &Path) -> (Vec<String>, Vec<(String, P
         let report = Some(dir.join("report.json"))
             .filter(|p| p.is_file())
             .unwrap_or_else(|| dir.join("scan.json"));
-        items.push((format!("ris/{cell}/scans/{id}/report"), report));
+        items.push((ScanItem::Report.key(cell, &id), report));
         if let Ok(files) = std::fs::read_dir(&dir) {
             for f in files.flatten() {
                 let name = f.file_name().to_string_lossy().into_owned();
                 match name.as_str() {
                     "report.html" => {
-                        items.push((format!("ris/{cell}/scans/{id}/page"), f.path()));
+                        items.push((ScanItem::Page.key(cell, &id), f.path()));
                         continue;
                     }
                     "deviation.png" => {
-                        items.push((format!("ris/{cell}/scans/{id}/map"), f.path()));
+                        items.push((ScanItem::Map.key(cell, &id), f.path()));
                         continue;
                     }
                     _ => {}
                 }
                 match name.strip_suffix(".ply") {
-                    Some("deviation") => {
-                        items.push((format!("ris/{cell}/scans/{id}/deviation"), f.path()))
-                    }
+                    Some("deviation") => items.push((ScanItem::Deviation.key(cell, &id), f.path())),
                     Some(sensor) => {
-                        items.push((format!("ris/{cell}/scans/{id}/cloud/{sensor}"), f.path()))
+                        items.push((ScanItem::Cloud(sensor.to_string()).key(cell, &id), f.path()))
                     }
                     None => {}
                 }

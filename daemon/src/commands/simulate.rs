@@ -102,7 +102,8 @@ pub fn run(scene: &Path, out: &Path) -> Result<Simulated> {
         return Ok(Simulated::Session(o));
     }
     let frames = frames_per_capture(&s);
-    let pb = progress::bar(2 * frames, "rendering");
+    // The scene is ray-cast before the first frame (tens of seconds for a large one).
+    let pb = progress::bar(2 * frames, "ray-casting");
     let stage = Mutex::new(String::new());
     let result = simulate(&s, out, &|what, _, _| {
         if let Ok(mut st) = stage.lock() {

@@ -30,6 +30,17 @@ use crate::pattern::CodeAxis;
 use crate::sensor::reference::{PlaneCodeMap, PlaneSample, DEFAULT_DEGREE};
 use crate::{Error, Result};
 
+/// The projector centre the parallax model needs.
+fn parallax_centre(sensor: &Sensor) -> Result<Vec3> {
+    sensor.projector_center.ok_or_else(|| {
+        Error::invalid(
+            "sensor",
+            "projector.center",
+            "the parallax model needs the projector centre",
+        )
+    })
+}
+
 /// Which model to reconstruct with.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum ModelChoice {
@@ -71,7 +82,11 @@ impl Reconstructor {
         params: &DecodeParams,
     ) -> Result<Reconstructor> {
         let reference = match (&sensor.reference, Self::uses_parallax(sensor, choice)) {
-            (Some(dir), true) => Some(Self::decode_reference(sensor, dir, params)?),
+            (Some(dir), true) => {
+                // A missing centre is named before the reference is decoded for nothing.
+                parallax_centre(sensor)?;
+                Some(Self::decode_reference(sensor, dir, params)?)
+            }
             _ => None,
         };
         Reconstructor::with_reference(sensor, choice, reference.as_ref())
@@ -115,13 +130,7 @@ impl Reconstructor {
                     "the parallax model needs a [reference] capture",
                 )
             })?;
-            let op = sensor.projector_center.ok_or_else(|| {
-                Error::invalid(
-                    "sensor",
-                    "projector.center",
-                    "the parallax model needs the projector centre",
-                )
-            })?;
+            let op = parallax_centre(sensor)?;
             if (reference.width, reference.height) != (sensor.camera.width, sensor.camera.height) {
                 return Err(Error::invalid(
                     "sensor",

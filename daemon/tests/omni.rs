@@ -13,7 +13,7 @@ use ris_core::omni::scene::OmniScene;
 use zenoh::Wait;
 
 mod common;
-use common::{ask, client, free_port, states, wait_end, Risd};
+use common::{ask, cell_config, client, free_port, states, wait_end, InProcess};
 
 fn config_dir() -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../config")
@@ -88,14 +88,8 @@ fn risd_scans_and_streams_an_omni_sensor_beside_a_pair() {
 
     let data = dir.path().join("data");
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
-    let mut risd = Risd::start(&[
-        "--config".as_ref(),
-        config_path.as_os_str(),
-        "--listen".as_ref(),
-        endpoint.as_ref(),
-        "--data-dir".as_ref(),
-        data.as_os_str(),
-    ]);
+    // The service in this process: what it answers and publishes is under test, not the process.
+    let mut risd = InProcess::start(cell_config(&config_path, &endpoint, &data));
     risd.wait_ready(Duration::from_secs(120));
     let session = client(&endpoint);
 
@@ -303,6 +297,5 @@ fn risd_scans_and_streams_an_omni_sensor_beside_a_pair() {
         matches!(r.first(), Some(Ok(t)) if t.contains("stopped")),
         "{r:?}"
     );
-    let (status, log) = risd.terminate();
-    assert!(status.success(), "{status:?}: {log:#?}");
+    risd.stop().expect("the service stops cleanly");
 }

@@ -87,37 +87,6 @@ fn builtin_dir() -> Result<PathBuf> {
         .context("the built-in mock cell's scenes (config/mock-cell/) are not installed")
 }
 
-/// The service on tokio's multi-thread runtime (Zenoh needs it), stopped by SIGTERM or SIGINT.
-fn serve(config: CellConfig) -> Result<()> {
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .enable_all()
-        .build()
-        .context("starting the async runtime")?;
-    let served = runtime.block_on(async move {
-        let shutdown = tokio_util::sync::CancellationToken::new();
-        let signals = shutdown.clone();
-        tokio::spawn(async move {
-            use tokio::signal::unix::{signal, SignalKind};
-            let (Ok(mut term), Ok(mut int)) = (
-                signal(SignalKind::terminate()),
-                signal(SignalKind::interrupt()),
-            ) else {
-                tracing::error!("cannot listen for SIGTERM/SIGINT");
-                return;
-            };
-            tokio::select! {
-                _ = term.recv() => tracing::info!("SIGTERM"),
-                _ = int.recv() => tracing::info!("SIGINT"),
-            }
-            signals.cancel();
-        });
-        ris_daemon::service::run(config, shutdown).await
-    });
-    // Preparation still running at SIGTERM is not waited for.
-    runtime.shutdown_timeout(std::time::Duration::from_secs(2));
-    served
-}
-
 fn main() -> Result<()> {
     ris_daemon::logging::init("info", "warn");
     let args = Args::parse();
@@ -144,7 +113,8 @@ fn main() -> Result<()> {
     }
     config.check_files()?;
     if !args.once {
-        return serve(config);
+        let shutdown = tokio_util::sync::CancellationToken::new();
+        return ris_daemon::service::serve(config, shutdown, true);
     }
     let data_dir = &config.storage.data_dir;
     let _lock = ris_daemon::store::DataDirLock::acquire(data_dir)?;

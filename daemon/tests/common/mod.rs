@@ -413,3 +413,105 @@ fn uncaptured(line: &str) {
     use std::io::Write;
     let _ = writeln!(std::io::stderr(), "{line}");
 }
+
+/// `path`'s cell configured as a test runs it: listening on `endpoint`, scans under `data`, the
+/// shared prepared-pairs cache.
+pub fn cell_config(
+    path: &std::path::Path,
+    endpoint: &str,
+    data: &std::path::Path,
+) -> ris_daemon::config::CellConfig {
+    let mut config = ris_daemon::config::CellConfig::load(path).expect("cell configuration");
+    config.zenoh.listen = vec![endpoint.to_string()];
+    config.storage.data_dir = data.to_path_buf();
+    config.storage.cache_dir = Some(shared_cache());
+    config.check_files().expect("the cell's files");
+    config
+}
+
+/// risd's service run in this process (`service::serve` on a thread of its own, as `risd`
+/// runs it, without the signal handler), for tests of what it answers and publishes; a test of
+/// signals, systemd notification, the data-directory lock or a second daemon starts the
+/// process instead ([`Risd`]). Stopped (shutdown cancelled, thread joined) on drop.
+pub struct InProcess {
+    shutdown: tokio_util::sync::CancellationToken,
+    thread: Option<std::thread::JoinHandle<anyhow::Result<()>>>,
+    cell: String,
+    endpoint: String,
+}
+
+impl InProcess {
+    /// Start serving `config` (whose first listen endpoint clients use).
+    pub fn start(config: ris_daemon::config::CellConfig) -> InProcess {
+        let shutdown = tokio_util::sync::CancellationToken::new();
+        let stop = shutdown.clone();
+        let cell = config.name.clone();
+        let endpoint = config
+            .zenoh
+            .listen
+            .first()
+            .cloned()
+            .expect("a listen endpoint");
+        let thread = std::thread::Builder::new()
+            .name("risd-in-process".into())
+            .spawn(move || ris_daemon::service::serve(config, stop, false))
+            .expect("service thread");
+        InProcess {
+            shutdown,
+            thread: Some(thread),
+            cell,
+            endpoint,
+        }
+    }
+
+    /// Wait until the cell's health token is alive (every pair prepared), as a client would.
+    pub fn wait_ready(&mut self, limit: Duration) {
+        let session = client(&self.endpoint);
+        let key = ris_daemon::protocol::health_key(&self.cell);
+        let t = Instant::now();
+        loop {
+            if let Some(thread) = &self.thread {
+                if thread.is_finished() {
+                    let ended = self.thread.take().map(|t| t.join());
+                    panic!("the service ended before it was ready: {ended:?}");
+                }
+            }
+            let alive = session
+                .liveliness()
+                .get(&key)
+                .timeout(Duration::from_millis(500))
+                .wait()
+                .ok()
+                .and_then(|replies| replies.recv().ok())
+                .is_some_and(|r| r.result().is_ok());
+            if alive {
+                break;
+            }
+            assert!(
+                t.elapsed() < limit,
+                "the service was not ready within {limit:?}"
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        let _ = session.close().wait();
+    }
+
+    /// Cancel the service and wait for it: its outcome.
+    pub fn stop(mut self) -> anyhow::Result<()> {
+        self.shutdown.cancel();
+        match self.thread.take().map(|t| t.join()) {
+            Some(Ok(outcome)) => outcome,
+            Some(Err(_)) => Err(anyhow::anyhow!("the service thread panicked")),
+            None => Ok(()),
+        }
+    }
+}
+
+impl Drop for InProcess {
+    fn drop(&mut self) {
+        self.shutdown.cancel();
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}

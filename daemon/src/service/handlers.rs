@@ -1,0 +1,351 @@
+//! The service's answers: scan and stream requests, streamed points and the stored scans.
+
+use std::path::Path;
+use std::sync::{mpsc, Mutex};
+
+use anyhow::Result;
+use zenoh::query::Query;
+use zenoh::Session;
+
+use crate::cell::ScanJob;
+use crate::config::CellConfig;
+use crate::protocol::{
+    echo, scan_key, state_key, stream_key, stream_sensor_key, ErrorReply, Health, ScanMode,
+    ScanReply, ScanRequest, ScanState, StreamRequest,
+};
+use crate::scan;
+use crate::store;
+use crate::stream::{self, StreamControl};
+
+use super::worker::{publish, Job};
+
+/// Validate a request against the cell and choose the part to inspect (an index into the
+/// cell's parts); the error is the reply's reason.
+pub fn validate(req: &ScanRequest, config: &CellConfig) -> Result<Option<usize>, String> {
+    if let Some(list) = &req.sensors {
+        if list.is_empty() {
+            return Err("`sensors` is empty".into());
+        }
+        for s in list {
+            if !config.sensors.iter().any(|c| c.name == *s) {
+                return Err(format!("no sensor {} in cell {:?}", echo(s), config.name));
+            }
+        }
+    }
+    let named = match &req.part {
+        Some(p) => Some(
+            config
+                .parts
+                .iter()
+                .position(|c| c.id == *p)
+                .ok_or_else(|| format!("no part {} in cell {:?}", echo(p), config.name))?,
+        ),
+        None => None,
+    };
+    // A single-shot cloud is sparse and noisier than a Gray-code one: it is inspected only
+    // when the request asks for it, never by default.
+    let single = req.mode == Some(ScanMode::SingleShot);
+    match (req.inspect, named, config.parts.len()) {
+        (Some(false), Some(_), _) => Err("`part` is named but `inspect` is false".into()),
+        (Some(false), None, _) => Ok(None),
+        (None, _, _) if single => Ok(None),
+        (_, Some(i), _) => Ok(Some(i)),
+        (_, None, 1) => Ok(Some(0)),
+        (Some(true), None, 0) => Err(format!("cell {:?} defines no part to inspect", config.name)),
+        (Some(true), None, n) => Err(format!(
+            "cell {:?} defines {n} parts; name one in `part`",
+            config.name
+        )),
+        (None, None, _) => Ok(None),
+    }
+}
+
+pub(super) async fn reply_error(q: &Query, key: &str, reason: &str) {
+    tracing::warn!(reason, "scan refused");
+    let reply = ErrorReply {
+        error: reason.to_string(),
+    };
+    if let Err(e) = q
+        .reply_err(serde_json::to_string(&reply).unwrap_or_default())
+        .await
+    {
+        tracing::warn!(%key, error = %e, "error reply failed");
+    }
+}
+
+pub(super) async fn handle_scan(
+    q: &Query,
+    config: &CellConfig,
+    tx: &mpsc::SyncSender<Job>,
+    status: &Mutex<Health>,
+    session: &Session,
+    counter: u64,
+) {
+    let key = scan_key(&config.name);
+    // Only the exact key starts a scan: a wildcard query (`ris/*/scan`, `**`) is not a request.
+    if q.key_expr().as_str() != key {
+        tracing::debug!(asked = %q.key_expr(), "wildcard query on the scan key ignored");
+        return;
+    }
+    let body = q
+        .payload()
+        .map(|p| p.to_bytes().into_owned())
+        .unwrap_or_default();
+    let outcome = ScanRequest::parse(&body)
+        .and_then(|r| validate(&r, config).map(|part| (r, part)))
+        .and_then(|(r, part)| {
+            let scan_id = scan::new_scan_id(counter);
+            // Counted before the worker can take it, so the count never goes stale.
+            if let Ok(mut s) = status.lock() {
+                s.queue += 1;
+            }
+            let job = Job {
+                scan_id: scan_id.clone(),
+                scan: ScanJob {
+                    sensors: r.sensors.clone(),
+                    part,
+                    tag: r.tag.clone(),
+                    mode: r.mode.unwrap_or_default(),
+                },
+            };
+            let sent = tx.try_send(job);
+            if sent.is_err() {
+                if let Ok(mut s) = status.lock() {
+                    s.queue = s.queue.saturating_sub(1);
+                }
+            }
+            match sent {
+                Ok(()) => Ok((scan_id, r)),
+                Err(mpsc::TrySendError::Full(_)) => Err(format!(
+                    "the scan queue is full ({} waiting); try again later",
+                    config.workers.queue
+                )),
+                Err(mpsc::TrySendError::Disconnected(_)) => Err("risd is stopping".into()),
+            }
+        });
+    match outcome {
+        Ok((scan_id, r)) => {
+            tracing::info!(%scan_id, tag = ?r.tag.as_deref().map(echo), "scan accepted");
+            publish(session, &config.name, &scan_id, &ScanState::Queued);
+            let reply = ScanReply {
+                scan_id,
+                state: "accepted".into(),
+                sensors: r
+                    .sensors
+                    .clone()
+                    .unwrap_or_else(|| config.sensors.iter().map(|s| s.name.clone()).collect()),
+            };
+            if let Err(e) = q
+                .reply(&key, serde_json::to_string(&reply).unwrap_or_default())
+                .await
+            {
+                tracing::warn!(error = %e, "scan reply failed");
+            }
+        }
+        Err(reason) => reply_error(q, &key, &reason).await,
+    }
+}
+
+/// `ris/<cell>/stream`: start, stop or report the single-shot stream.
+pub(super) async fn handle_stream(
+    q: &Query,
+    config: &CellConfig,
+    ready: bool,
+    status: &Mutex<Health>,
+    streams: &StreamControl,
+) {
+    let key = stream_key(&config.name);
+    if q.key_expr().as_str() != key {
+        return;
+    }
+    let body = q
+        .payload()
+        .map(|p| p.to_bytes().into_owned())
+        .unwrap_or_default();
+    let names: Vec<String> = config.sensors.iter().map(|s| s.name.clone()).collect();
+    let outcome = StreamRequest::parse(&body).and_then(|r| match r.action.as_deref() {
+        None | Some("status") => Ok(serde_json::to_value(streams.status()).unwrap_or_default()),
+        Some("stop") => {
+            let st = streams.stop();
+            tracing::info!("stream stopped by request");
+            Ok(serde_json::to_value(st).unwrap_or_default())
+        }
+        Some("start") => {
+            if !ready {
+                return Err("the cell is starting: its pairs are being prepared; try again when ris/<cell>/health is alive".into());
+            }
+            let spec = r.spec(&names, config.single_shot.rate_hz)?;
+            let pairs = status.lock().map(|s| s.pairs.clone()).unwrap_or_default();
+            for p in pairs.iter().filter(|p| spec.sensors.contains(&p.sensor)) {
+                if let Some(why) = &p.single_shot {
+                    return Err(why.clone());
+                }
+            }
+            tracing::info!(sensors = ?spec.sensors, rate_hz = spec.rate_hz, "stream requested");
+            let keys: serde_json::Map<String, serde_json::Value> = spec
+                .sensors
+                .iter()
+                .map(|s| {
+                    (
+                        s.clone(),
+                        serde_json::json!({
+                            "cloud": stream_sensor_key(&config.name, s, "cloud"),
+                            "fused": stream_sensor_key(&config.name, s, "fused"),
+                            "point": stream_sensor_key(&config.name, s, "point"),
+                        }),
+                    )
+                })
+                .collect();
+            let reply = serde_json::json!({
+                "state": "streaming",
+                "sensors": spec.sensors,
+                "rate_hz": spec.rate_hz,
+                "keys": keys,
+            });
+            streams.start(spec);
+            Ok(reply)
+        }
+        Some(other) => Err(format!(
+            "unknown action {} (start, stop, status)",
+            echo(other)
+        )),
+    });
+    match outcome {
+        Ok(v) => {
+            if let Err(e) = q.reply(&key, v.to_string()).await {
+                tracing::warn!(error = %e, "stream reply failed");
+            }
+        }
+        Err(reason) => reply_error(q, &key, &reason).await,
+    }
+}
+
+/// `ris/<cell>/stream/<sensor>/point?u=..&v=..`: the streamed point nearest a camera pixel.
+pub(super) async fn handle_point(q: &Query, streams: &StreamControl) {
+    let key = q.key_expr().clone();
+    let sensor = key
+        .as_str()
+        .split('/')
+        .nth(3)
+        .unwrap_or_default()
+        .to_string();
+    if sensor.contains('*') {
+        return;
+    }
+    // `u=..&v=..` as well as Zenoh's own `u=..;v=..`.
+    let text = q.parameters().as_str().to_string();
+    let params: Vec<(&str, &str)> = text
+        .split(['&', ';'])
+        .filter_map(|kv| kv.split_once('='))
+        .collect();
+    let num = |name: &str| {
+        params
+            .iter()
+            .find(|(k, _)| *k == name)
+            .map(|(_, v)| *v)
+            .ok_or_else(|| format!("`{name}` is missing: ask ...point?u=<column>&v=<row>"))
+            .and_then(|v| {
+                v.parse::<f64>()
+                    .map_err(|_| format!("`{name}` = {} is not a number", echo(v)))
+            })
+    };
+    let answer = num("u")
+        .and_then(|u| num("v").map(|v| (u, v)))
+        .and_then(|(u, v)| stream::point_query(streams, &sensor, u, v));
+    match answer {
+        Ok(json) => {
+            if let Err(e) = q.reply(key, json).await {
+                tracing::warn!(error = %e, "point reply failed");
+            }
+        }
+        Err(reason) => {
+            let reply = serde_json::json!({ "error": reason }).to_string();
+            if let Err(e) = q.reply_err(reply).await {
+                tracing::warn!(error = %e, "point error reply failed");
+            }
+        }
+    }
+}
+
+/// Answer `ris/<cell>/scans/**` from the finished scans on disk: `<id>/state`, `<id>/report`,
+/// `<id>/cloud/<sensor>` and `<id>/deviation`, for every key the query matches.
+pub(super) async fn handle_store(q: &Query, cell: &str, data_dir: &Path) {
+    let (c, d) = (cell.to_string(), data_dir.to_path_buf());
+    let Ok((ids, items)) = tokio::task::spawn_blocking(move || store::stored_items(&c, &d)).await
+    else {
+        return;
+    };
+    let asked = q.key_expr().clone();
+    let matching = |key: &str| {
+        zenoh::key_expr::KeyExpr::try_from(key.to_string())
+            .ok()
+            .filter(|k| asked.intersects(k))
+    };
+    for id in ids {
+        if let Some(k) = matching(&state_key(cell, &id)) {
+            let _ = q.reply(k, r#"{"state":"done"}"#).await;
+        }
+    }
+    for (key, path) in items {
+        let Some(k) = matching(&key) else {
+            continue;
+        };
+        match tokio::fs::read(&path).await {
+            // Replies follow the query's congestion control.
+            Ok(bytes) => {
+                if let Err(err) = q.reply(k, bytes).await {
+                    tracing::warn!(%key, error = %err, "stored reply failed");
+                }
+            }
+            Err(err) => {
+                tracing::warn!(path = %path.display(), error = %err, "stored file unreadable")
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cell(parts: &[&str]) -> CellConfig {
+        let mut text = String::from(
+            "[cell]\nname = \"t\"\n[[sensor]]\nname = \"s1\"\nbackend = \"mock\"\nscene = \"s.toml\"\nto_common = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]\n",
+        );
+        for p in parts {
+            text += &format!("[[part]]\nid = \"{p}\"\ncad = \"{p}.stl\"\ntolerance = 0.5\n");
+        }
+        CellConfig::parse(&text, Path::new("."), "test").expect("config")
+    }
+
+    fn req(json: &str) -> ScanRequest {
+        ScanRequest::parse(json.as_bytes()).expect("request")
+    }
+
+    #[test]
+    fn the_part_to_inspect_follows_the_request_and_the_cell() {
+        let none = cell(&[]);
+        let one = cell(&["door"]);
+        let two = cell(&["door", "hood"]);
+        assert_eq!(validate(&req("{}"), &none), Ok(None));
+        assert_eq!(validate(&req("{}"), &one), Ok(Some(0)));
+        assert_eq!(validate(&req("{}"), &two), Ok(None));
+        assert_eq!(validate(&req(r#"{"inspect": false}"#), &one), Ok(None));
+        assert_eq!(validate(&req(r#"{"part": "hood"}"#), &two), Ok(Some(1)));
+        let err = |r: &str, c: &CellConfig| validate(&req(r), c).expect_err(r);
+        assert!(err(r#"{"inspect": true}"#, &none).contains("no part"));
+        assert!(err(r#"{"inspect": true}"#, &two).contains("name one"));
+        assert!(err(r#"{"part": "roof"}"#, &two).contains("\"roof\""));
+        assert!(err(r#"{"part": "door", "inspect": false}"#, &two).contains("inspect"));
+        // An unknown mode is refused by the parser (the protocol's `ScanMode`).
+        assert!(ScanRequest::parse(br#"{"mode": "fast"}"#).is_err());
+        assert_eq!(validate(&req(r#"{"mode": "single-shot"}"#), &one), Ok(None));
+        assert_eq!(
+            validate(
+                &req(r#"{"mode": "single-shot", "inspect": true, "part": "hood"}"#),
+                &two
+            ),
+            Ok(Some(1))
+        );
+    }
+}

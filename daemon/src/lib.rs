@@ -1,17 +1,14 @@
-//! The RIS daemon crate: the `risd` cell daemon and the `ris` command-line tool.
-//!
-//! Binaries under `src/bin/` only parse arguments and set up logging; every command's logic is a
-//! function in [`commands`] so tests can call it directly.
+//! The RIS cell daemon `risd`: the cell's configuration, its pairs prepared and scanned, the
+//! Zenoh protocol and service, the scan store. `src/bin/risd.rs` only parses arguments; the `ris`
+//! command-line tool (`cli/`) is a client of this crate's [`protocol`].
 
 pub mod cell;
-pub mod commands;
 pub mod config;
 pub mod logging;
 pub mod notify;
 pub mod page;
 pub mod pair;
 pub mod prepared;
-pub mod progress;
 pub mod protocol;
 pub mod ros2;
 pub mod scan;

@@ -57,7 +57,7 @@ fn independent_zenoh_client_scans_twice_then_sigterm_stops_cleanly() {
     let received = tempfile::tempdir().expect("tmp");
     let ris_scan = |extra: &[&str]| {
         output_within(
-            Command::new(env!("CARGO_BIN_EXE_ris"))
+            Command::new(common::binary("ris"))
                 .args(["scan", "--connect", &endpoint, "--cell", "mock", "--out"])
                 .arg(received.path())
                 .args(extra),

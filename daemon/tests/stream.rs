@@ -128,7 +128,7 @@ fn risd_streams_single_shot_clouds_and_answers_pixel_queries() {
     // `ris stream` starts, shows and stops a stream of s1 and s2.
     let out = dir.path().join("stream");
     let o = output_within(
-        Command::new(env!("CARGO_BIN_EXE_ris")).args([
+        Command::new(common::binary("ris")).args([
             "stream",
             "--connect",
             &endpoint,
@@ -378,7 +378,7 @@ fn risd_streams_single_shot_clouds_and_answers_pixel_queries() {
         .duration_since(std::time::UNIX_EPOCH)
         .expect("clock")
         .as_nanos() as u64;
-    let mut watcher = Command::new(env!("CARGO_BIN_EXE_ris"))
+    let mut watcher = Command::new(common::binary("ris"))
         .args([
             "stream",
             "--connect",

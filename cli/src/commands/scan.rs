@@ -10,7 +10,7 @@ use std::time::Duration;
 use anyhow::{anyhow, bail, Context, Result};
 use serde_json::Value;
 
-use crate::protocol::{scans_key, ScanItem, ScanMode, ScanReply, ScanRequest};
+use ris_daemon::protocol::{scans_key, ScanItem, ScanMode, ScanReply, ScanRequest};
 
 /// What to ask for and where to write it.
 pub struct ScanArgs {
@@ -129,10 +129,13 @@ async fn scan(args: &ScanArgs) -> Result<Arrived> {
         .declare_subscriber(scans_key(cell))
         .await
         .map_err(|e| anyhow!("subscribing to {}: {e}", scans_key(cell)))?;
-    let reply: ScanReply =
-        super::client::ask(&session, &crate::protocol::scan_key(cell), &request(args))
-            .await
-            .with_context(|| format!("asking cell {cell:?} at {:?} for a scan", args.connect))?;
+    let reply: ScanReply = super::client::ask(
+        &session,
+        &ris_daemon::protocol::scan_key(cell),
+        &request(args),
+    )
+    .await
+    .with_context(|| format!("asking cell {cell:?} at {:?} for a scan", args.connect))?;
     let scan_id = reply.scan_id;
     let planned = reply.sensors;
     tracing::info!(%scan_id, "scan accepted");

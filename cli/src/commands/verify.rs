@@ -81,7 +81,7 @@ pub fn run(artefacts: &Path, clouds: &Clouds, out: &Path) -> Result<Certificate>
         &planes,
         &spheres,
         &VerifyParams::default(),
-        crate::scan::utc_time(),
+        ris_daemon::scan::utc_time(),
     )
     .with_context(|| format!("evaluating against {}", artefacts.display()))?;
     bar.inc(1);

@@ -12,11 +12,12 @@ use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
+use ris_cli::commands::virtual_cell::start_rig;
 use ris_core::cloud::PointCloud;
 use ris_core::geometry::Vec3;
 use ris_core::sim::{Scene, Simulator};
-use ris_daemon::commands::virtual_cell::start_rig;
 
+#[path = "../../daemon/tests/common/mod.rs"]
 mod common;
 use common::{ask, client, free_port, output_within, states, wait_end, Risd, Watchdog};
 
@@ -93,7 +94,7 @@ fn risd_scans_the_virtual_cell_and_survives_a_lost_camera() {
     let bad = bad_dir.path().join("bad.toml");
     std::fs::write(&bad, text).expect("write");
     let o = output_within(
-        Command::new(env!("CARGO_BIN_EXE_risd"))
+        Command::new(common::binary("risd"))
             .arg("--config")
             .arg(&bad)
             .args(["--once", "--data-dir"])

@@ -8,7 +8,7 @@ use anyhow::{anyhow, bail, Context, Result};
 use serde::de::DeserializeOwned;
 use serde::Serialize;
 
-use crate::protocol::ErrorReply;
+use ris_daemon::protocol::ErrorReply;
 
 /// A client session to `connect`, logged in as the user of `credentials` (user, file whose
 /// first line is the password) when the cell has `[zenoh.access]`.
@@ -30,8 +30,8 @@ pub async fn open(
     if connect.is_empty() {
         bail!("--connect: give the daemon's endpoint, e.g. tcp/127.0.0.1:7447");
     }
-    crate::config::check_endpoints("command line", "--connect", connect)?;
-    let config = crate::service::client_config(
+    ris_daemon::config::check_endpoints("command line", "--connect", connect)?;
+    let config = ris_daemon::service::client_config(
         connect,
         password.as_ref().map(|(u, p)| (u.as_str(), p.as_str())),
     )?;

@@ -8,6 +8,7 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
 
+#[path = "../../daemon/tests/common/mod.rs"]
 mod common;
 use common::output_within;
 

@@ -4,11 +4,11 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
+use ris_cli::commands;
 use ris_core::calibrate::GaugeParams;
 use ris_core::decode::DecodeParams;
 use ris_core::pattern::CodeLayout;
 use ris_core::sensor::ModelChoice;
-use ris_daemon::commands;
 
 #[derive(Parser)]
 #[command(

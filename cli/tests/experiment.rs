@@ -4,13 +4,13 @@
 
 use std::path::Path;
 
-use ris_daemon::commands::experiment::completeness;
+use ris_cli::commands::experiment::completeness;
 
 #[test]
 fn adaptive_mask_recovers_challenging_materials() {
     let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenes/challenge.toml");
     let c = completeness(&scene, None).expect("experiment");
-    ris_daemon::commands::experiment::print_table(&c);
+    ris_cli::commands::experiment::print_table(&c);
     for (name, f) in &c.materials {
         assert!(
             f.sprayed > 5000,
@@ -54,9 +54,9 @@ fn a_moving_part_smears_the_gray_scan_but_not_the_single_shot_frame() {
     let scene = dir.path().join("moving.toml");
     std::fs::write(&scene, demo + "\n[render]\nsupersample = 2\n").expect("scene");
     let m =
-        ris_daemon::commands::experiment::motion(&scene, &[0.0, 100.0], [1.0, 0.0, 0.0], 60.0, 5.0)
+        ris_cli::commands::experiment::motion(&scene, &[0.0, 100.0], [1.0, 0.0, 0.0], 60.0, 5.0)
             .expect("experiment");
-    ris_daemon::commands::experiment::print_motion(&m);
+    ris_cli::commands::experiment::print_motion(&m);
     let (still, moving) = (&m.rows[0], &m.rows[1]);
     assert_eq!(m.gray_frames, 42);
     assert!((moving.gray_travel_mm - 100.0 * 41.0 / 60.0).abs() < 1e-9);
@@ -89,6 +89,6 @@ fn a_moving_part_smears_the_gray_scan_but_not_the_single_shot_frame() {
         still.single_within_1mm,
         moving.single_within_1mm
     );
-    let bad = ris_daemon::commands::experiment::motion(&scene, &[-1.0], [1.0, 0.0, 0.0], 60.0, 5.0);
+    let bad = ris_cli::commands::experiment::motion(&scene, &[-1.0], [1.0, 0.0, 0.0], 60.0, 5.0);
     assert!(bad.is_err());
 }

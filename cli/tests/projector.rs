@@ -10,6 +10,7 @@ use std::time::{Duration, Instant};
 
 use ris_core::pattern::{CodeLayout, Pattern};
 
+#[path = "../../daemon/tests/common/mod.rs"]
 mod common;
 use common::Xvfb;
 

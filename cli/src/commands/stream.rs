@@ -8,7 +8,7 @@ use std::time::{Duration, Instant, SystemTime};
 use anyhow::{anyhow, bail, Context, Result};
 
 use super::client::ask;
-use crate::protocol::{stream_sensor_key, StreamRequest};
+use ris_daemon::protocol::{stream_sensor_key, StreamRequest};
 use serde_json::Value;
 
 /// What to stream and for how long.
@@ -123,7 +123,7 @@ async fn stream(args: &StreamArgs) -> Result<BTreeMap<String, Received>> {
         rate: args.rate,
         sensors: (!args.sensors.is_empty()).then(|| args.sensors.clone()),
     };
-    let key = crate::protocol::stream_key(cell);
+    let key = ris_daemon::protocol::stream_key(cell);
     let started: Value = ask(&session, &key, &request).await?;
     let sensors: Vec<String> = started["sensors"]
         .as_array()

@@ -71,7 +71,7 @@ pub fn run(
     let title = MapTitle {
         part: name_of(cad),
         scan: name_of(cloud),
-        time: crate::scan::utc_time(),
+        time: ris_daemon::scan::utc_time(),
     };
     write_deviation_png(
         &out.join("deviation.png"),
@@ -83,7 +83,7 @@ pub fn run(
     )?;
     let json = serde_json::to_string_pretty(&r.report)?;
     ris_core::io::write_atomic(&out.join("report.json"), json.as_bytes())?;
-    crate::page::write_report_page(out)?;
+    ris_daemon::page::write_report_page(out)?;
     bar.finish_and_clear();
     let s = &r.report.statistics;
     if s.non_finite > 0 {

@@ -1,4 +1,4 @@
-//! `ris demo`: the end-to-end job of the README — simulate the built-in scene, reconstruct it
+//! `ris demo`: one sensor pair end to end: simulate the built-in scene, reconstruct it
 //! with the parallax model, write the cloud and an accuracy summary against ground truth.
 
 use std::path::{Path, PathBuf};

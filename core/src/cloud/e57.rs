@@ -22,7 +22,7 @@ use crate::{Error, Result};
 
 /// Namespace of the RIS point attributes.
 const NAMESPACE: &str = "ris";
-/// The extension's identifier (a URN: the attributes are described in the README).
+/// The extension's identifier (a URN: the attributes are described in docs/commands.md, `ris convert`).
 const URL: &str = "urn:ris:e57:point-attributes:1";
 const CONFIDENCE: &str = "confidence";
 const OUTSIDE: &str = "outsideVolume";

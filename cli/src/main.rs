@@ -3,11 +3,10 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use clap::{Args, Parser, Subcommand, ValueEnum};
+use clap::{Parser, Subcommand, ValueEnum};
 use ris_cli::commands;
 use ris_core::calibrate::GaugeParams;
 use ris_core::decode::DecodeParams;
-use ris_core::pattern::CodeLayout;
 use ris_core::sensor::ModelChoice;
 
 #[derive(Parser)]
@@ -90,23 +89,6 @@ enum ExperimentCommand {
         #[arg(long)]
         json: bool,
     },
-}
-
-/// How a client reaches a running risd.
-#[derive(Args)]
-struct DaemonArgs {
-    /// Zenoh endpoint of the daemon.
-    #[arg(long, default_value = "tcp/127.0.0.1:7447")]
-    connect: Vec<String>,
-    /// Cell name.
-    #[arg(long, default_value = "mock")]
-    cell: String,
-    /// Zenoh user, for a cell with [zenoh.access].
-    #[arg(long, requires = "password_file")]
-    user: Option<String>,
-    /// File whose first line is the user's password.
-    #[arg(long, requires = "user")]
-    password_file: Option<PathBuf>,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -226,49 +208,7 @@ enum Model {
 #[derive(Subcommand)]
 enum Command {
     /// Write the multi-shot Gray-code patterns for a projector as PNG files.
-    Patterns {
-        /// Projector size, e.g. 1024x768.
-        #[arg(long)]
-        projector: String,
-        /// Projector pixels per column code cell.
-        #[arg(long, default_value_t = 1)]
-        column_step: u32,
-        /// Projector pixels per row code cell.
-        #[arg(long, default_value_t = 1)]
-        row_step: u32,
-        /// Leave out the row codes.
-        #[arg(long)]
-        no_rows: bool,
-        /// Add the flat levels of the photo response (flat_000 … flat_250).
-        #[arg(long)]
-        flats: bool,
-        /// Write the omnidirectional projector's ring pattern instead (rings.png, rings.toml).
-        #[arg(long)]
-        rings: bool,
-        /// Centre of the rings, e.g. 511.5,383.5 (default: the image centre).
-        #[arg(long)]
-        center: Option<String>,
-        /// Write the single-shot X-point pattern instead (xpoint.png, xpoint.toml).
-        #[arg(long)]
-        xpoint: bool,
-        /// With --xpoint: the seed of the code array.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// With --xpoint: grid steps DX,DY in projector pixels.
-        #[arg(long, default_value = "14,14")]
-        step: String,
-        /// With --xpoint: Hamming distance every two distinct 3x3 windows keep (at most 3).
-        #[arg(long, default_value_t = 3)]
-        min_distance: u32,
-        /// With --xpoint: a region with a finer step, X0,X1,Y0,Y1,DX,DY (projector columns
-        /// X0…X1, rows Y0…Y1, steps DX,DY); repeat for more. The columns across X0…X1 and the
-        /// rows across Y0…Y1 take the finer steps.
-        #[arg(long)]
-        dense: Vec<String>,
-        /// Output directory.
-        #[arg(long)]
-        out: PathBuf,
-    },
+    Patterns(commands::patterns::PatternsArgs),
     /// Decode a capture set to sub-pixel projector coordinates (col.npy, row.npy, confidence.npy).
     Decode {
         /// Capture directory (with capture.toml).
@@ -414,7 +354,7 @@ enum Command {
     /// measured)
     Scan {
         #[command(flatten)]
-        daemon: DaemonArgs,
+        daemon: commands::client::DaemonArgs,
         /// Scan mode (gray, adaptive, single-shot); the daemon's default when omitted.
         #[arg(long, value_parser = ["gray", "adaptive", "single-shot"])]
         mode: Option<String>,
@@ -482,7 +422,7 @@ enum Command {
     /// (SENSOR.ply, cell frame) and fusion picture (SENSOR.png) in OUT.
     Stream {
         #[command(flatten)]
-        daemon: DaemonArgs,
+        daemon: commands::client::DaemonArgs,
         /// Sensors to stream (repeat; default all).
         #[arg(long = "sensor")]
         sensors: Vec<String>,
@@ -605,115 +545,11 @@ enum Command {
     },
 }
 
-/// Distinct exit statuses so scripts can branch on the verdict: 3 for a failed part, 4 for
-/// one that was not measured (neither pass nor fail).
-fn verdict_exit_code(verdict: &str) -> Option<i32> {
-    match verdict {
-        "pass" => None,
-        ris_core::inspect::NOT_MEASURED => Some(4),
-        _ => Some(3),
-    }
-}
-
 fn main() -> Result<()> {
     ris_daemon::logging::init("info", "error");
     let cli = Cli::parse();
     match cli.command {
-        Command::Patterns {
-            projector,
-            column_step,
-            row_step,
-            no_rows,
-            flats,
-            rings,
-            center,
-            xpoint,
-            seed,
-            step,
-            min_distance,
-            dense,
-            out,
-        } => {
-            let (width, height) = commands::parse_size(&projector)?;
-            anyhow::ensure!(
-                xpoint || dense.is_empty(),
-                "--dense refines the X-point pattern: it needs --xpoint"
-            );
-            anyhow::ensure!(
-                !(rings && xpoint),
-                "--rings and --xpoint are different patterns: one at a time"
-            );
-            if xpoint {
-                let step: Vec<u32> = step
-                    .split(',')
-                    .map(|x| x.trim().parse::<u32>())
-                    .collect::<std::result::Result<_, _>>()
-                    .map_err(|_| anyhow::anyhow!("--step {step:?}: expected DX,DY in pixels"))?;
-                anyhow::ensure!(step.len() == 2, "--step: expected DX,DY in pixels");
-                let dense = dense
-                    .iter()
-                    .map(|d| commands::patterns::parse_dense(d))
-                    .collect::<Result<Vec<_>>>()?;
-                let p = commands::patterns::xpoint(
-                    width,
-                    height,
-                    [step[0], step[1]],
-                    &dense,
-                    min_distance,
-                    seed,
-                    &out,
-                )?;
-                let [c, r] = p.grid();
-                println!(
-                    "wrote {} X-points ({c}x{r} grid, windows unique over {}x{}) for a {width}x{height} projector to {}",
-                    c * r,
-                    p.pattern.period[0],
-                    p.pattern.period[1],
-                    out.display()
-                );
-                return Ok(());
-            }
-            if rings {
-                let center = match center {
-                    Some(c) => {
-                        let v: Vec<f64> = c
-                            .split(',')
-                            .map(|x| x.trim().parse::<f64>())
-                            .collect::<std::result::Result<_, _>>()
-                            .map_err(|_| anyhow::anyhow!("--center {c:?}: expected CX,CY"))?;
-                        anyhow::ensure!(v.len() == 2, "--center {c:?}: expected CX,CY");
-                        Some([v[0], v[1]])
-                    }
-                    None => None,
-                };
-                let n = commands::patterns::rings(width, height, center, &out)?;
-                println!(
-                    "wrote {n} rings for a {width}x{height} projector to {}",
-                    out.display()
-                );
-                return Ok(());
-            }
-            anyhow::ensure!(center.is_none(), "--center goes with --rings");
-            anyhow::ensure!(
-                column_step >= 1 && row_step >= 1,
-                "--column-step and --row-step must be ≥ 1"
-            );
-            let n = commands::patterns::run(
-                CodeLayout {
-                    width,
-                    height,
-                    column_step,
-                    row_step,
-                },
-                !no_rows,
-                flats,
-                &out,
-            )?;
-            println!(
-                "wrote {n} patterns for a {width}x{height} projector to {}",
-                out.display()
-            );
-        }
+        Command::Patterns(args) => commands::patterns::command(&args)?,
         Command::Decode {
             capture,
             out,
@@ -958,7 +794,7 @@ fn main() -> Result<()> {
         }
         Command::Stream {
             daemon:
-                DaemonArgs {
+                commands::client::DaemonArgs {
                     connect,
                     cell,
                     user,
@@ -985,7 +821,7 @@ fn main() -> Result<()> {
         }
         Command::Scan {
             daemon:
-                DaemonArgs {
+                commands::client::DaemonArgs {
                     connect,
                     cell,
                     user,
@@ -1028,7 +864,7 @@ fn main() -> Result<()> {
                 println!("inspection: {}", v.to_uppercase());
             }
             println!("wrote {}", r.dir.display());
-            if let Some(code) = r.verdict.as_deref().and_then(verdict_exit_code) {
+            if let Some(code) = r.verdict.as_deref().and_then(commands::verdict_exit_code) {
                 std::process::exit(code);
             }
         }
@@ -1048,7 +884,7 @@ fn main() -> Result<()> {
                 min_coverage,
                 &out,
             )?;
-            if let Some(code) = verdict_exit_code(&report.verdict) {
+            if let Some(code) = commands::verdict_exit_code(&report.verdict) {
                 std::process::exit(code);
             }
         }

@@ -707,3 +707,30 @@ proptest::proptest! {
         }
     }
 }
+
+/// A listen endpoint another program holds: risd exits at once naming the endpoint and what to
+/// change, without library source paths.
+#[test]
+fn a_listen_endpoint_in_use_is_named() {
+    let holder = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
+    let endpoint = format!(
+        "tcp/127.0.0.1:{}",
+        holder.local_addr().expect("addr").port()
+    );
+    let data = tempfile::tempdir().expect("tmp");
+    let o = Command::new(env!("CARGO_BIN_EXE_risd"))
+        .args(["--listen", &endpoint, "--data-dir"])
+        .arg(data.path())
+        .env_remove("RIS_LOG")
+        .env("RUST_BACKTRACE", "0")
+        .output()
+        .expect("risd");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(err.contains(&endpoint) && err.contains("--listen"), "{err}");
+    assert!(
+        !err.contains("registry/src") && !err.contains(".rs:"),
+        "{err}"
+    );
+    drop(holder);
+}

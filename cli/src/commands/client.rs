@@ -10,6 +10,23 @@ use serde::Serialize;
 
 use ris_daemon::protocol::ErrorReply;
 
+/// How a client reaches a running risd.
+#[derive(Clone, Debug, clap::Args)]
+pub struct DaemonArgs {
+    /// Zenoh endpoint of the daemon.
+    #[arg(long, default_value = "tcp/127.0.0.1:7447")]
+    pub connect: Vec<String>,
+    /// Cell name.
+    #[arg(long, default_value = "mock")]
+    pub cell: String,
+    /// Zenoh user, for a cell with [zenoh.access].
+    #[arg(long, requires = "password_file")]
+    pub user: Option<String>,
+    /// File whose first line is the user's password.
+    #[arg(long, requires = "user")]
+    pub password_file: Option<PathBuf>,
+}
+
 /// A client session to `connect`, logged in as the user of `credentials` (user, file whose
 /// first line is the password) when the cell has `[zenoh.access]`.
 pub async fn open(
@@ -54,7 +71,12 @@ pub async fn ask<Req: Serialize, Rep: DeserializeOwned>(
         .payload(serde_json::to_string(body)?)
         .timeout(Duration::from_secs(10))
         .await
-        .map_err(|e| anyhow!("asking {key}: {e}"))?;
+        .map_err(|e| {
+            anyhow!(
+                "asking {key}: {}",
+                ris_daemon::service::plain(&e.to_string())
+            )
+        })?;
     let reply = replies.recv_async().await.map_err(|_| {
         anyhow!("no reply from {key}: no risd serves this cell there (check --cell and --connect)")
     })?;

@@ -71,6 +71,16 @@ pub fn parse_range(s: &str, what: &str) -> Result<ris_core::single_shot::FusionR
     )?)
 }
 
+/// Distinct exit statuses so scripts can branch on the verdict: 3 for a failed part, 4 for
+/// one that was not measured (neither pass nor fail).
+pub fn verdict_exit_code(verdict: &str) -> Option<i32> {
+    match verdict {
+        "pass" => None,
+        ris_core::inspect::NOT_MEASURED => Some(4),
+        _ => Some(3),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     #[test]

@@ -145,11 +145,19 @@ async fn scan(args: &ScanArgs) -> Result<Arrived> {
     let mut report: Option<Vec<u8>> = None;
     let deadline = tokio::time::Instant::now() + args.timeout;
     let done = loop {
-        let sample = tokio::time::timeout_at(deadline, sub.recv_async())
-            .await
+        let next = tokio::select! {
+            next = tokio::time::timeout_at(deadline, sub.recv_async()) => next,
+            _ = tokio::signal::ctrl_c() => {
+                pb.abandon_with_message("interrupted");
+                bail!(
+                    "interrupted: scan {scan_id} goes on in risd; its results stay under ris/{cell}/scans/{scan_id}/ (state, report, cloud/<sensor>)"
+                );
+            }
+        };
+        let sample = next
             .map_err(|_| {
                 anyhow!(
-                    "scan {scan_id} did not finish within {} s",
+                    "scan {scan_id} did not finish within {} s; its results, when it finishes, are under ris/{cell}/scans/{scan_id}/",
                     args.timeout.as_secs()
                 )
             })?

@@ -121,8 +121,50 @@ pub async fn open(config: &CellConfig) -> Result<Session> {
     }
     zenoh::open(zc).await.map_err(|e| {
         anyhow!(
-            "opening the Zenoh session on {:?}: {e}; is another program listening there (risd --listen, or the file's [zenoh] listen)?",
-            z.listen
+            "cannot listen on {} ({}): is another risd or program using it? Give another endpoint with --listen or the file's [zenoh] listen",
+            z.listen.join(", "),
+            plain(&e.to_string())
         )
     })
+}
+
+/// A Zenoh error's words without the source locations it carries (` at /path/file.rs:12.`),
+/// which mean nothing to a user.
+pub fn plain(error: &str) -> String {
+    let mut out = String::new();
+    let mut rest = error;
+    while let Some(i) = rest.find(" at /") {
+        out.push_str(&rest[..i]);
+        let tail = &rest[i + 5..];
+        // The location ends at the first ".rs:<digits>" and an optional '.'.
+        match tail.find(".rs:") {
+            Some(j) => {
+                let after = &tail[j + 4..];
+                let digits = after.chars().take_while(char::is_ascii_digit).count();
+                let after = &after[digits..];
+                rest = after.strip_prefix('.').unwrap_or(after);
+            }
+            None => {
+                rest = "";
+            }
+        }
+    }
+    out.push_str(rest);
+    let words: Vec<&str> = out.split_whitespace().collect();
+    words.join(" ").trim_end_matches(['.', '!']).to_string()
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn zenoh_errors_lose_their_source_locations() {
+        let e = "Can not create a new TCP listener bound to tcp/127.0.0.1:7447: [Address already in use (os error 98) at /root/.cargo/registry/src/index.crates.io-1949cf8c6b5b557f/zenoh-link-tcp-1.10.2/src/unicast.rs:345.] at /root/.cargo/registry/src/index.crates.io-1949cf8c6b5b557f/zenoh-1.10.2/src/net/runtime/orchestrator.rs:447.";
+        let p = super::plain(e);
+        assert_eq!(
+            p,
+            "Can not create a new TCP listener bound to tcp/127.0.0.1:7447: [Address already in use (os error 98)]"
+        );
+        assert_eq!(super::plain("no location here."), "no location here");
+        assert_eq!(super::plain("cut at /x/y"), "cut");
+    }
 }

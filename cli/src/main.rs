@@ -352,31 +352,7 @@ enum Command {
     /// Ask a running risd for a scan, follow its progress and write the clouds and report
     /// into OUT/SCAN_ID/ (exit status 3 when the inspected part fails, 4 when it was not
     /// measured)
-    Scan {
-        #[command(flatten)]
-        daemon: commands::client::DaemonArgs,
-        /// Scan mode (gray, adaptive, single-shot); the daemon's default when omitted.
-        #[arg(long, value_parser = ["gray", "adaptive", "single-shot"])]
-        mode: Option<String>,
-        /// Sensors to scan (repeat; default all).
-        #[arg(long = "sensor")]
-        sensors: Vec<String>,
-        /// Part to inspect (default: the cell's only part, if it has one).
-        #[arg(long)]
-        part: Option<String>,
-        /// Do not inspect.
-        #[arg(long, conflicts_with = "part")]
-        no_inspect: bool,
-        /// Free text stored with the scan.
-        #[arg(long)]
-        tag: Option<String>,
-        /// Give up when the scan has not finished after this many seconds.
-        #[arg(long, default_value_t = 300)]
-        timeout_s: u64,
-        /// Output directory.
-        #[arg(long)]
-        out: PathBuf,
-    },
+    Scan(commands::scan::ScanCommand),
     /// The omnidirectional sensor (SPEC §13). With IMAGE: decode the ring pattern in the
     /// camera's image into the 360° cloud (sensor frame, mm, with `ring` and `azimuth` per
     /// point) and optionally the panorama with distance colours (azimuth 0…360° left to right,
@@ -819,52 +795,8 @@ fn main() -> Result<()> {
                 credentials: user.zip(password_file),
             })?;
         }
-        Command::Scan {
-            daemon:
-                commands::client::DaemonArgs {
-                    connect,
-                    cell,
-                    user,
-                    password_file,
-                },
-            mode,
-            sensors,
-            part,
-            no_inspect,
-            tag,
-            timeout_s,
-            out,
-        } => {
-            let r = commands::scan::run(&commands::scan::ScanArgs {
-                connect,
-                cell,
-                mode: mode
-                    .as_deref()
-                    .and_then(ris_daemon::protocol::ScanMode::parse),
-                sensors,
-                inspect: no_inspect.then_some(false),
-                part,
-                tag,
-                out,
-                timeout: std::time::Duration::from_secs(timeout_s),
-                credentials: user.zip(password_file),
-            })?;
-            println!(
-                "scan {}: {} merged points, {:.2} s of computation after the last frame",
-                r.scan_id,
-                r.done["merged_points"],
-                r.done["compute_after_last_frame"]
-                    .as_f64()
-                    .unwrap_or(f64::NAN)
-            );
-            for w in r.done["warnings"].as_array().into_iter().flatten() {
-                println!("warning: {}", w.as_str().unwrap_or_default());
-            }
-            if let Some(v) = &r.verdict {
-                println!("inspection: {}", v.to_uppercase());
-            }
-            println!("wrote {}", r.dir.display());
-            if let Some(code) = r.verdict.as_deref().and_then(commands::verdict_exit_code) {
+        Command::Scan(args) => {
+            if let Some(code) = commands::scan::command(&args)? {
                 std::process::exit(code);
             }
         }

@@ -49,6 +49,68 @@ pub struct Received {
     pub verdict: Option<String>,
 }
 
+/// `ris scan`: the daemon, the request and where the results go.
+#[derive(Clone, Debug, clap::Args)]
+pub struct ScanCommand {
+    /// How to reach the daemon.
+    #[command(flatten)]
+    pub daemon: super::client::DaemonArgs,
+    /// Scan mode (gray, adaptive, single-shot); the daemon's default when omitted.
+    #[arg(long, value_parser = ["gray", "adaptive", "single-shot"])]
+    pub mode: Option<String>,
+    /// Sensors to scan (repeat; default all).
+    #[arg(long = "sensor")]
+    pub sensors: Vec<String>,
+    /// Part to inspect (default: the cell's only part, if it has one).
+    #[arg(long)]
+    pub part: Option<String>,
+    /// Do not inspect.
+    #[arg(long, conflicts_with = "part")]
+    pub no_inspect: bool,
+    /// Free text stored with the scan.
+    #[arg(long)]
+    pub tag: Option<String>,
+    /// Give up when the scan has not finished after this many seconds.
+    #[arg(long, default_value_t = 300)]
+    pub timeout_s: u64,
+    /// Output directory.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Run `ris scan`: ask, follow, write, say what arrived; the exit status of the verdict
+/// (see [`super::verdict_exit_code`]).
+pub fn command(c: &ScanCommand) -> Result<Option<i32>> {
+    let r = run(&ScanArgs {
+        connect: c.daemon.connect.clone(),
+        cell: c.daemon.cell.clone(),
+        mode: c.mode.as_deref().and_then(ScanMode::parse),
+        sensors: c.sensors.clone(),
+        inspect: c.no_inspect.then_some(false),
+        part: c.part.clone(),
+        tag: c.tag.clone(),
+        out: c.out.clone(),
+        timeout: Duration::from_secs(c.timeout_s),
+        credentials: c.daemon.user.clone().zip(c.daemon.password_file.clone()),
+    })?;
+    println!(
+        "scan {}: {} merged points, {:.2} s of computation after the last frame",
+        r.scan_id,
+        r.done["merged_points"],
+        r.done["compute_after_last_frame"]
+            .as_f64()
+            .unwrap_or(f64::NAN)
+    );
+    for w in r.done["warnings"].as_array().into_iter().flatten() {
+        println!("warning: {}", w.as_str().unwrap_or_default());
+    }
+    if let Some(v) = &r.verdict {
+        println!("inspection: {}", v.to_uppercase());
+    }
+    println!("wrote {}", r.dir.display());
+    Ok(r.verdict.as_deref().and_then(super::verdict_exit_code))
+}
+
 /// The request of `args`.
 fn request(args: &ScanArgs) -> ScanRequest {
     ScanRequest {

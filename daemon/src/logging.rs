@@ -26,8 +26,9 @@ fn default_filter(level: &str, libraries: &str) -> String {
     f
 }
 
-/// Install the subscriber: `level` for RIS's crates and `libraries` for the others (a client
-/// command says in its own words what went wrong, so it takes only their errors), unless
+/// Install the subscriber: `level` for RIS's crates and `libraries` for the others (risd and
+/// `ris` say in their own words what went wrong and what to change, so they take only the
+/// libraries' errors; Zenoh's warnings carry source paths and repeat what RIS says), unless
 /// `RIS_LOG` (e.g. `debug`, `ris_core=trace,zenoh=info`) says otherwise. Colours only on a
 /// terminal.
 pub fn init(level: &str, libraries: &str) {

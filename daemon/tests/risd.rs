@@ -354,7 +354,15 @@ fn once_scans_the_builtin_mock_cell() {
         .collect();
     cached.sort();
     assert_eq!(cached.len(), 8, "{cached:?}");
-    assert!(cached[0].starts_with("s1-") && cached[0].ends_with(".reference"));
+    for s in ["s1", "s2", "s3", "s4"] {
+        for kind in [".reference", ".render"] {
+            let n = cached
+                .iter()
+                .filter(|c| c.starts_with(&format!("{s}-")) && c.ends_with(kind))
+                .count();
+            assert_eq!(n, 1, "{s}{kind}: {cached:?}");
+        }
+    }
     let o = Command::new(env!("CARGO_BIN_EXE_risd"))
         .args(["--once", "--scan-id", "warm", "--data-dir"])
         .arg(dir.path())

@@ -88,7 +88,7 @@ fn builtin_dir() -> Result<PathBuf> {
 }
 
 fn main() -> Result<()> {
-    ris_daemon::logging::init("info", "warn");
+    ris_daemon::logging::init("info", "error");
     let args = Args::parse();
     if let Some(path) = &args.check_config {
         let config = CellConfig::load(path)?;

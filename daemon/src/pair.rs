@@ -254,13 +254,13 @@ pub fn prepare(s: &SensorConfig, cache: &Cache) -> Result<Prepared> {
                 .scene
                 .take()
                 .ok_or_else(|| anyhow!("sensor {}: a mock pair needs its scene", s.name))?;
-            // The camera's ray-cast scene: the scene file and its directory (meshes) key it.
+            // The camera's ray-cast scene: keyed by the scene as parsed and by every mesh file
+            // it loads (wherever it lies), not by the directory it happens to sit in.
             let mut key = Key::new("render cache");
-            if let Some(path) = &s.scene {
-                key.file("scene", path);
-                if let Some(dir) = path.parent() {
-                    key.dir("scene directory", dir);
-                }
+            key.add("scene", &sc.file);
+            let base = s.scene.as_deref().and_then(|p| p.parent());
+            for mesh in sc.file.object.iter().filter_map(|o| o.file.as_ref()) {
+                key.file("mesh", &base.map_or_else(|| mesh.into(), |b| b.join(mesh)));
             }
             let (render, cached) =
                 cache.get(&s.name, &RENDER, &key, || Ok(RenderCache::build(&sc)))?;

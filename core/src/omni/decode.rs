@@ -1050,6 +1050,7 @@ mod tests {
                 (
                     Shape::Cylinder {
                         center: Vec3::new(1400.0 * b.cos(), 1400.0 * b.sin(), -300.0),
+                        axis: Vec3::z(),
                         radius: 250.0,
                         half_height: 900.0,
                     },

@@ -266,6 +266,7 @@ mod tests {
                 (
                     Shape::Cylinder {
                         center: Vec3::new(-1200.0, -900.0, -300.0),
+                        axis: Vec3::z(),
                         radius: 250.0,
                         half_height: 900.0,
                     },

@@ -217,6 +217,7 @@ impl OmniScene {
                     }
                     Shape::Cylinder {
                         center,
+                        axis: Vec3::z(),
                         radius,
                         half_height: height / 2.0,
                     }

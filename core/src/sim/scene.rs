@@ -117,6 +117,9 @@ pub struct ObjectSection {
     /// Dome or cylinder height.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub height: Option<f64>,
+    /// Cylinder axis direction (any length; default [0, 0, 1], upright).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub axis: Option<[f64; 3]>,
     /// STL file, relative to the scene file.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub file: Option<String>,
@@ -464,11 +467,23 @@ impl Scene {
                     need1(o.radius, "radius")?,
                     need1(o.height, "height")?,
                 ),
-                "cylinder" => Shape::Cylinder {
-                    center: Vec3::from(need3(o.center, "center")?),
-                    radius: need1(o.radius, "radius")?,
-                    half_height: need1(o.height, "height")? / 2.0,
-                },
+                "cylinder" => {
+                    let axis = Vec3::from(o.axis.unwrap_or([0.0, 0.0, 1.0]));
+                    let length = axis.norm();
+                    if !(length.is_finite() && length > 1e-12) {
+                        return Err(Error::invalid(
+                            ctx,
+                            f("axis"),
+                            "must be a finite, non-zero direction",
+                        ));
+                    }
+                    Shape::Cylinder {
+                        center: Vec3::from(need3(o.center, "center")?),
+                        axis: axis / length,
+                        radius: need1(o.radius, "radius")?,
+                        half_height: need1(o.height, "height")? / 2.0,
+                    }
+                }
                 "mesh" => {
                     let file_name = o.file.as_ref().ok_or_else(|| {
                         Error::invalid(ctx, f("file"), "a mesh needs an STL file")

@@ -63,10 +63,12 @@ pub enum Shape {
         /// Base disk radius.
         base_radius: f64,
     },
-    /// Cylinder with axis z, closed by two disks.
+    /// Cylinder closed by two disks.
     Cylinder {
         /// Centroid.
         center: Vec3,
+        /// Unit direction of the axis.
+        axis: Vec3,
         /// Radius.
         radius: f64,
         /// Half height.
@@ -161,38 +163,39 @@ impl Shape {
             }
             Shape::Cylinder {
                 center,
+                axis,
                 radius,
                 half_height,
             } => {
                 let mut best: Option<(f64, Vec3)> = None;
-                let (ox, oy) = (o.x - center.x, o.y - center.y);
-                let a = d.x * d.x + d.y * d.y;
+                // Components across the axis: |oc⊥ + t d⊥|² = r² on the side.
+                let oc = o - center;
+                let (oa, da) = (oc.dot(axis), d.dot(axis));
+                let (oc_n, d_n) = (oc - axis * oa, d - axis * da);
+                let a = d_n.dot(&d_n);
                 if a > 1e-18 {
-                    let b = ox * d.x + oy * d.y;
-                    let c = ox * ox + oy * oy - radius * radius;
+                    let b = oc_n.dot(&d_n);
+                    let c = oc_n.dot(&oc_n) - radius * radius;
                     let disc = b * b - a * c;
                     if disc >= 0.0 {
                         let s = disc.sqrt();
                         for t in [(-b - s) / a, (-b + s) / a] {
-                            let z = o.z + d.z * t;
-                            if ok(t) && (z - center.z).abs() <= *half_height {
-                                let p = o + d * t;
-                                best = Some((
-                                    t,
-                                    Vec3::new(p.x - center.x, p.y - center.y, 0.0) / *radius,
-                                ));
+                            if ok(t) && (oa + da * t).abs() <= *half_height {
+                                best = Some((t, (oc_n + d_n * t) / *radius));
                                 break;
                             }
                         }
                     }
                 }
-                for (z, nz) in [
-                    (center.z + half_height, 1.0),
-                    (center.z - half_height, -1.0),
-                ] {
-                    if let Some(t) = disk(o, d, z, center.x, center.y, *radius) {
-                        if ok(t) && best.is_none_or(|b| t < b.0) {
-                            best = Some((t, Vec3::new(0.0, 0.0, nz)));
+                if da.abs() > 1e-15 {
+                    for side in [1.0, -1.0] {
+                        let t = (side * half_height - oa) / da;
+                        let across = oc_n + d_n * t;
+                        if ok(t)
+                            && across.dot(&across) <= radius * radius
+                            && best.is_none_or(|b| t < b.0)
+                        {
+                            best = Some((t, axis * side));
                         }
                     }
                 }
@@ -253,6 +256,7 @@ mod tests {
             (
                 Shape::Cylinder {
                     center: Vec3::new(0.0, 0.0, 25.0),
+                    axis: Vec3::z(),
                     radius: 10.0,
                     half_height: 25.0,
                 },
@@ -267,6 +271,7 @@ mod tests {
         // Side of the cylinder, seen horizontally.
         let cyl = Shape::Cylinder {
             center: Vec3::new(0.0, 0.0, 25.0),
+            axis: Vec3::z(),
             radius: 10.0,
             half_height: 25.0,
         };

@@ -37,6 +37,9 @@ struct DecodeArgs {
     /// Power of the contrast ratio weighting edges beside albedo changes (0 = off).
     #[arg(long, default_value_t = DecodeParams::default().albedo_weight_power)]
     albedo_weight_power: u32,
+    /// Leave the line fit's curvature bias on curved surfaces (for comparisons only).
+    #[arg(long)]
+    no_bend_correction: bool,
 }
 
 impl DecodeArgs {
@@ -47,6 +50,7 @@ impl DecodeArgs {
             edge_window: self.edge_window,
             edge_erosion: self.edge_erosion,
             albedo_weight_power: self.albedo_weight_power,
+            bend_correction: !self.no_bend_correction,
             ..DecodeParams::default()
         }
     }

@@ -15,6 +15,14 @@ fn bench(c: &mut Criterion) {
     g.bench_function("2048x2048_42_frames", |b| {
         b.iter(|| decode(&capture, &params).expect("decode"))
     });
+    // The same without the curvature correction of the line fit, for its cost.
+    let straight = DecodeParams {
+        bend_correction: false,
+        ..params
+    };
+    g.bench_function("2048x2048_42_frames_without_bend_correction", |b| {
+        b.iter(|| decode(&capture, &straight).expect("decode"))
+    });
     g.finish();
 }
 

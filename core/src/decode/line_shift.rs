@@ -81,6 +81,8 @@ struct Code {
     extrapolate: bool,
     cell_tolerance: f32,
     albedo_power: u32,
+    /// The bend's filter for a whole symmetric window, when the bend is corrected.
+    bend: Option<BendFilter>,
 }
 
 /// Columns handled together when scanning down columns, so frame reads stay row-major.
@@ -102,7 +104,7 @@ pub(super) fn subpixel<T: Sample>(
     bits: u32,
     step: u32,
     params: &super::DecodeParams,
-) -> (Vec<f32>, Vec<f32>) {
+) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     let code = Code {
         bits,
         step: step as f32,
@@ -111,40 +113,42 @@ pub(super) fn subpixel<T: Sample>(
         extrapolate: params.extrapolate,
         cell_tolerance: params.cell_tolerance,
         albedo_power: params.albedo_weight_power,
+        bend: params
+            .bend_correction
+            .then(|| BendFilter::new(wide_window(params.edge_window.max(1)))),
     };
     let mut coord = vec![f32::NAN; w * h];
     let mut quality = vec![0f32; w * h];
+    let mut bend = vec![0f32; w * h];
     match dir {
         ScanDirection::AlongRows => {
             coord
                 .par_chunks_mut(w)
                 .zip(quality.par_chunks_mut(w))
+                .zip(bend.par_chunks_mut(w))
                 .enumerate()
-                .for_each_init(
-                    || (Vec::new(), Vec::new()),
-                    |(edges, prefix), (y, (out, q))| {
-                        let line = Line {
-                            start: y * w,
-                            stride: 1,
-                            len: w,
-                        };
-                        edges.clear();
-                        let mut chain = ChainState::default();
-                        for n in 0..w.saturating_sub(1) {
-                            gap_edges(
-                                y * w + n,
-                                y * w + n + 1,
-                                n,
-                                codes,
-                                signal,
-                                &code,
-                                &mut chain,
-                                edges,
-                            );
-                        }
-                        fit_runs(line, codes, &code, edges, prefix, out, q);
-                    },
-                );
+                .for_each_init(Vec::new, |edges, (y, ((out, q), bent))| {
+                    let line = Line {
+                        start: y * w,
+                        stride: 1,
+                        len: w,
+                    };
+                    edges.clear();
+                    let mut chain = ChainState::default();
+                    for n in 0..w.saturating_sub(1) {
+                        gap_edges(
+                            y * w + n,
+                            y * w + n + 1,
+                            n,
+                            codes,
+                            signal,
+                            &code,
+                            &mut chain,
+                            edges,
+                        );
+                    }
+                    fit_runs(line, codes, &code, edges, out, q, bent);
+                });
         }
         ScanDirection::AlongColumns => {
             // Phase 2 reads each column's codes contiguously from a transposed copy.
@@ -152,16 +156,11 @@ pub(super) fn subpixel<T: Sample>(
             coord
                 .par_chunks_mut(BLOCK * h)
                 .zip(quality.par_chunks_mut(BLOCK * h))
+                .zip(bend.par_chunks_mut(BLOCK * h))
                 .enumerate()
                 .for_each_init(
-                    || {
-                        (
-                            vec![Vec::new(); BLOCK],
-                            vec![ChainState::default(); BLOCK],
-                            Vec::new(),
-                        )
-                    },
-                    |(edges, chains, prefix), (b, (out, q))| {
+                    || (vec![Vec::new(); BLOCK], vec![ChainState::default(); BLOCK]),
+                    |(edges, chains), (b, ((out, q), bent))| {
                         let x0 = b * BLOCK;
                         let bw = out.len() / h;
                         for x in 0..bw {
@@ -196,16 +195,16 @@ pub(super) fn subpixel<T: Sample>(
                                 &codes_t,
                                 &code,
                                 &edges[x],
-                                prefix,
                                 &mut out[x * h..(x + 1) * h],
                                 &mut q[x * h..(x + 1) * h],
+                                &mut bent[x * h..(x + 1) * h],
                             );
                         }
                     },
                 );
         }
     }
-    (coord, quality)
+    (coord, quality, bend)
 }
 
 /// Chain bookkeeping of one line while its gaps are visited in order.
@@ -217,33 +216,314 @@ struct ChainState {
     started: bool,
 }
 
-/// Weighted moments of the edges, for line fits over any window in O(1).
+/// Highest power of the polynomial that describes the edges' bend around a cell.
+const DEGREE: usize = 4;
+
+/// The bend of the edges' positions around one code cell: the terms of power 2..=[`DEGREE`]
+/// of x(u), with u = boundary − origin (code cells from the cell's centre) and x in camera
+/// pixels.
+///
+/// A straight line fitted across several edges on either side of a cell is biased wherever
+/// the surface curves: by the mean of u² over the window times the curvature, 0.06–0.1 mm
+/// inwards on a 40 mm sphere at 1.6 m with three edges a side. The bend is therefore taken
+/// from a polynomial over a wider window, removed from the edges before the line is fitted
+/// over the narrow window, and put back when each pixel's coordinate is solved; the
+/// difference it makes is [`add_bend`]'s correction. A quadratic alone is not enough near a
+/// sphere's rim, where the quartic term of a wide window shifts its curvature.
 #[derive(Clone, Copy, Debug, Default)]
-struct Moments {
-    w: f64,
-    p: f64,
-    x: f64,
-    pp: f64,
-    px: f64,
+struct Bend {
+    c: [f64; DEGREE - 1],
 }
 
-impl Moments {
-    /// Weighted least-squares line x = α + β P through the edges whose moments these are
-    /// (P = step·boundary − 0.5; the noise is in x). `None` when degenerate.
+impl Bend {
+    /// x − bend at `u`.
     #[inline]
-    fn line(&self, step: f32) -> Option<(f32, f32)> {
-        let den = self.w * self.pp - self.p * self.p;
-        if den.abs() < 1e-9 * self.w * self.w {
+    fn value(&self, u: f64) -> f64 {
+        let mut uk = u * u;
+        let mut v = 0.0;
+        for c in self.c {
+            v += c * uk;
+            uk *= u;
+        }
+        v
+    }
+
+    /// d(bend)/du at `u`.
+    #[inline]
+    fn slope(&self, u: f64) -> f64 {
+        let mut uk = u;
+        let mut v = 0.0;
+        for (k, c) in self.c.iter().enumerate() {
+            v += (k + 2) as f64 * c * uk;
+            uk *= u;
+        }
+        v
+    }
+
+    /// The bend of the weighted least-squares polynomial through `wide`.
+    fn fit(wide: &[Edge], origin: f64) -> Bend {
+        // Polynomial degree the window supports with three spare edges.
+        let n = wide.len();
+        let degree = match n {
+            0..=5 => return Bend::default(),
+            6..=7 => 2,
+            _ => DEGREE,
+        };
+        let mut m = [0.0f64; 2 * DEGREE + 1]; // Σ w u^k
+        let mut r = [0.0f64; DEGREE + 1]; // Σ w u^k x
+        for ed in wide {
+            let (w, u, x) = (
+                f64::from(ed.weight),
+                f64::from(ed.boundary) - origin,
+                f64::from(ed.x),
+            );
+            let mut uk = w;
+            for (k, mk) in m.iter_mut().enumerate().take(2 * degree + 1) {
+                *mk += uk;
+                if k <= degree {
+                    r[k] += uk * x;
+                }
+                uk *= u;
+            }
+        }
+        let mut c = [0.0; DEGREE - 1];
+        let solved = if degree == DEGREE {
+            solve::<{ DEGREE + 1 }>(&m, &r, &mut c)
+        } else {
+            solve::<3>(&m, &r, &mut c)
+        };
+        if solved {
+            Bend { c }
+        } else {
+            Bend::default()
+        }
+    }
+}
+
+/// Solve the normal equations of a polynomial of N coefficients (Hankel matrix of the moments
+/// `m`, right side `r`) and put the coefficients of power 2 and up into `bend`; false when
+/// singular or not finite.
+fn solve<const N: usize>(m: &[f64], r: &[f64], bend: &mut [f64]) -> bool {
+    let normal = nalgebra::SMatrix::<f64, N, N>::from_fn(|i, j| m[i + j]);
+    let Some(chol) = normal.cholesky() else {
+        return false;
+    };
+    let coef = chol.solve(&nalgebra::SVector::<f64, N>::from_fn(|i, _| r[i]));
+    if coef.iter().any(|v| !v.is_finite()) {
+        return false;
+    }
+    for (k, b) in bend.iter_mut().enumerate().take(N - 2) {
+        *b = coef[k + 2];
+    }
+    true
+}
+
+/// Pixels along and lines across the window that tells a curved region from a flat one.
+const REGION: (usize, usize) = (12, 5);
+
+/// Pixels along and lines across the window over which a curved region's bend correction is
+/// averaged.
+const SMOOTHING: (usize, usize) = (1, 1);
+
+/// Mean bend correction over [`REGION`], projector pixels, above which a region counts as
+/// curved (about 0.02 mm of depth at the demo sensor's 17° triangulation angle).
+const CURVED: f32 = 0.006;
+
+/// Add the bend correction of [`subpixel`] to the coordinates where the surface is curved
+/// (line-major `w` × `h` layout, as [`subpixel`] returns it).
+///
+/// Each cell's bend comes from a quartic over many edges and is noisier than the straight
+/// line it corrects; on flat surfaces its errors are not independent either (the moiré of
+/// the projector's and the camera's pixel grids bends several neighbouring lines alike). A
+/// surface's curvature, though, keeps its sign over a wide region, where the moiré averages
+/// out: the correction (averaged over [`SMOOTHING`]) is applied only where its mean over
+/// [`REGION`] exceeds [`CURVED`]. Flats keep the straight line's noise; spheres of 20–60 mm
+/// lose their bias (see `core/tests/curved_surfaces.rs`).
+pub(super) fn add_bend(w: usize, h: usize, coord: &mut [f32], bend: &[f32]) {
+    let region = box_mean(w, h, coord, bend, REGION);
+    let local = box_mean(w, h, coord, bend, SMOOTHING);
+    coord
+        .par_iter_mut()
+        .zip(region.par_iter().zip(&local))
+        .for_each(|(c, (r, l))| {
+            if c.is_finite() && r.abs() > CURVED {
+                *c += l;
+            }
+        });
+}
+
+/// Mean of `values` over the valid pixels (finite `coord`) within `reach` pixels along and
+/// `radius` lines across; 0 where none is valid.
+fn box_mean(
+    w: usize,
+    h: usize,
+    coord: &[f32],
+    values: &[f32],
+    (reach, radius): (usize, usize),
+) -> Vec<f32> {
+    // Along the lines: windowed sums of the valid pixels' values and their counts.
+    let mut along = vec![(0f32, 0f32); w * h];
+    along
+        .par_chunks_mut(w)
+        .zip(coord.par_chunks(w).zip(values.par_chunks(w)))
+        .for_each(|(dst, (c, b))| {
+            let term = |x: usize| {
+                if c[x].is_finite() {
+                    (b[x], 1.0)
+                } else {
+                    (0.0, 0.0)
+                }
+            };
+            let (mut s, mut n) = (0f32, 0f32);
+            for x in 0..reach.min(w) {
+                let (v, k) = term(x);
+                s += v;
+                n += k;
+            }
+            for (x, d) in dst.iter_mut().enumerate() {
+                if x + reach < w {
+                    let (v, k) = term(x + reach);
+                    s += v;
+                    n += k;
+                }
+                if x > reach {
+                    let (v, k) = term(x - reach - 1);
+                    s -= v;
+                    n -= k;
+                }
+                *d = (s, n);
+            }
+        });
+    let mut out = vec![0f32; w * h];
+    out.par_chunks_mut(w).enumerate().for_each(|(y, o)| {
+        let (y0, y1) = (y.saturating_sub(radius), (y + radius + 1).min(h));
+        for (x, v) in o.iter_mut().enumerate() {
+            let (mut s, mut n) = (0f32, 0f32);
+            for yy in y0..y1 {
+                let (a, k) = along[yy * w + x];
+                s += a;
+                n += k;
+            }
+            if n > 0.0 {
+                *v = s / n;
+            }
+        }
+    });
+    out
+}
+
+/// The edges' positions near one code cell: x = a + b·u + bend(u).
+#[derive(Clone, Copy, Debug)]
+struct LocalFit {
+    a: f64,
+    b: f64,
+    bend: Bend,
+}
+
+impl LocalFit {
+    /// The weighted least-squares line through `edges` after removing `bend` (the weights
+    /// are the edges' reliabilities). `None` when degenerate or flat in x.
+    fn line(edges: &[Edge], origin: f64, bend: Bend) -> Option<LocalFit> {
+        let (mut s0, mut su, mut suu, mut sx, mut sux) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for ed in edges {
+            let w = f64::from(ed.weight);
+            let u = f64::from(ed.boundary) - origin;
+            let x = f64::from(ed.x) - bend.value(u);
+            s0 += w;
+            su += w * u;
+            suu += w * u * u;
+            sx += w * x;
+            sux += w * u * x;
+        }
+        let den = s0 * suu - su * su;
+        if den.abs() < 1e-9 * s0 * s0 {
             return None;
         }
-        let b = (self.w * self.px - self.p * self.x) / den; // camera pixels per code cell
-        let a = (self.x - b * self.p) / self.w; // x at boundary 0
+        let b = (s0 * sux - su * sx) / den;
         if b.abs() < 1e-6 {
             return None;
         }
-        // x = a + b B and P = step·B − 0.5  ⇒  x = α + β P.
-        let beta = b / f64::from(step);
-        Some(((a + 0.5 * beta) as f32, beta as f32))
+        Some(LocalFit {
+            a: (sx - b * su) / s0,
+            b,
+            bend,
+        })
+    }
+
+    /// The continuous boundary coordinate u at camera position `x`: the root of
+    /// a + b·u + bend(u) = x next to the line's, by two Newton steps.
+    #[inline]
+    fn at(&self, x: f64) -> f64 {
+        let mut u = (x - self.a) / self.b;
+        if self.bend.c.iter().any(|c| *c != 0.0) {
+            for _ in 0..2 {
+                let slope = self.b + self.bend.slope(u);
+                if slope.abs() < 1e-6 {
+                    break;
+                }
+                u -= (self.a + self.b * u + self.bend.value(u) - x) / slope;
+            }
+        }
+        u
+    }
+}
+
+/// Edges on either side of a cell for its bend: enough for a quartic beyond the line's window.
+fn wide_window(window: usize) -> usize {
+    (2 * window + 2).max(4)
+}
+
+/// The bend's coefficients as fixed linear combinations of the edges' positions, for the usual
+/// case of a whole window: `wide` consecutive boundaries on either side of the cell, equal
+/// weights (a quartic least-squares fit is linear in the data). Saves building and solving the
+/// normal equations for almost every cell.
+#[derive(Clone, Debug)]
+struct BendFilter {
+    wide: usize,
+    /// Per edge, in order of boundary from the lowest: its weight in each coefficient.
+    weights: Vec<[f64; DEGREE - 1]>,
+}
+
+impl BendFilter {
+    fn new(wide: usize) -> BendFilter {
+        let n = 2 * wide;
+        let u = |j: usize| j as f64 - wide as f64 + 0.5;
+        let normal = nalgebra::SMatrix::<f64, { DEGREE + 1 }, { DEGREE + 1 }>::from_fn(|i, k| {
+            (0..n).map(|j| u(j).powi((i + k) as i32)).sum()
+        });
+        let inverse = normal
+            .try_inverse()
+            .expect("the moments of distinct positions are invertible");
+        let weights = (0..n)
+            .map(|j| {
+                let mut w = [0.0; DEGREE - 1];
+                for (k, wk) in w.iter_mut().enumerate() {
+                    *wk = (0..=DEGREE)
+                        .map(|i| inverse[(k + 2, i)] * u(j).powi(i as i32))
+                        .sum();
+                }
+                w
+            })
+            .collect();
+        BendFilter { wide, weights }
+    }
+
+    /// The bend of `edges` around the cell whose centre is boundary `origin` − 0.5 … when they
+    /// are its whole window (`None` otherwise).
+    fn apply(&self, edges: &[Edge], origin: f64) -> Option<Bend> {
+        if edges.len() != 2 * self.wide {
+            return None;
+        }
+        let lowest = origin + 0.5 - self.wide as f64;
+        let mut c = [0.0; DEGREE - 1];
+        for ed in edges {
+            let j = f64::from(ed.boundary) - lowest;
+            let w = self.weights.get(j as usize).filter(|_| j >= 0.0)?;
+            for (ck, wk) in c.iter_mut().zip(w) {
+                *ck += wk * f64::from(ed.x);
+            }
+        }
+        Some(Bend { c })
     }
 }
 
@@ -253,38 +533,13 @@ fn fit_runs(
     codes: &[i32],
     code: &Code,
     edges: &[Edge],
-    prefix: &mut Vec<Moments>,
     out: &mut [f32],
     quality: &mut [f32],
+    bend: &mut [f32],
 ) {
-    // Prefix sums of the edges' weighted moments (f64: absolute coordinates on long lines).
-    prefix.clear();
-    prefix.push(Moments::default());
-    let mut acc = Moments::default();
-    for ed in edges {
-        let (w, p, x) = (
-            f64::from(ed.weight),
-            f64::from(ed.boundary),
-            f64::from(ed.x),
-        );
-        acc.w += w;
-        acc.p += w * p;
-        acc.x += w * x;
-        acc.pp += w * p * p;
-        acc.px += w * p * x;
-        prefix.push(acc);
-    }
-    let window = |first: usize, last: usize| {
-        let (a, b) = (&prefix[first], &prefix[last + 1]);
-        Moments {
-            w: b.w - a.w,
-            p: b.p - a.p,
-            x: b.x - a.x,
-            pp: b.pp - a.pp,
-            px: b.px - a.px,
-        }
-    };
     let at = |n: usize| line.start + n * line.stride;
+    // Edges on either side for the bend: enough for a quartic beyond the line's window.
+    let wide = wide_window(code.window);
     let mut n = 0usize;
     let mut e_idx = 0usize;
     while n < line.len {
@@ -324,35 +579,69 @@ fn fit_runs(
             .position(bounds)
             .map(|k| r_idx + k);
         let (lo, hi) = (code.step * c as f32 - 0.5, code.step * (c + 1) as f32 - 0.5);
-        let (first, last, q) = match (left, right) {
+        // Narrow window (the line) and wide window (the curvature), as edge index ranges.
+        let (first, last, wide_first, wide_last, q) = match (left, right) {
             (Some(l), Some(r))
                 if edges[l].chain == edges[r].chain && edges[l].boundary != edges[r].boundary =>
             {
                 (
                     widen_down(edges, l, code.window - 1),
                     widen_up(edges, r, code.window - 1),
+                    widen_down(edges, l, wide - 1),
+                    widen_up(edges, r, wide - 1),
                     1.0,
                 )
             }
-            (Some(l), _) => (widen_down(edges, l, code.window.max(2) - 1), l, 0.5),
-            (None, Some(r)) => (r, widen_up(edges, r, code.window.max(2) - 1), 0.5),
+            (Some(l), _) => (
+                widen_down(edges, l, code.window.max(2) - 1),
+                l,
+                widen_down(edges, l, 2 * wide - 1),
+                l,
+                0.5,
+            ),
+            (None, Some(r)) => (
+                r,
+                widen_up(edges, r, code.window.max(2) - 1),
+                r,
+                widen_up(edges, r, 2 * wide - 1),
+                0.5,
+            ),
             (None, None) => continue,
         };
         if last <= first || (q < 1.0 && !code.extrapolate) {
             continue;
         }
-        let Some((alpha, beta)) = window(first, last).line(code.step) else {
+        let origin = f64::from(c) + 0.5;
+        let narrow = &edges[first..=last];
+        let Some(fit) = LocalFit::line(narrow, origin, Bend::default()) else {
             continue;
         };
+        let bent_fit = code
+            .bend
+            .as_ref()
+            .map(|filter| {
+                let wide = &edges[wide_first..=wide_last];
+                filter
+                    .apply(wide, origin)
+                    .unwrap_or_else(|| Bend::fit(wide, origin))
+            })
+            .filter(|b| b.c.iter().any(|c| *c != 0.0))
+            .and_then(|b| LocalFit::line(narrow, origin, b));
+        let value = |fit: &LocalFit, x: f64| code.step as f64 * (origin + fit.at(x)) - 0.5;
+        // The bend's correction changes little across one run: taken at its middle.
+        let middle = 0.5 * (a + e) as f64;
+        let correction = bent_fit.map_or(0.0, |bent| {
+            (value(&bent, middle) - value(&fit, middle)) as f32
+        });
         // A fitted value well outside the pixel's own code cell means the edges and the code
         // disagree (a mixed pixel): reject rather than clamp.
         let tol = code.cell_tolerance * code.step;
-        let inv_beta = 1.0 / beta;
         for m in a..=e {
-            let v = (m as f32 - alpha) * inv_beta;
+            let v = value(&fit, m as f64) as f32;
             if v >= lo - tol && v <= hi + tol {
                 out[m] = v.clamp(lo, hi);
                 quality[m] = q;
+                bend[m] = correction;
             }
         }
     }
@@ -477,6 +766,63 @@ fn gap_edges<T: Sample>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Edges of a cell's whole window (boundaries c+1−wide ..= c+wide) on the curve
+    /// x = 100 + 1.3 u + 0.02 u² − 0.004 u³ + 0.0007 u⁴, in the order a decreasing chain gives.
+    fn curved_window(c: u32, wide: usize) -> Vec<Edge> {
+        let origin = f64::from(c) + 0.5;
+        (c + 1 - wide as u32..=c + wide as u32)
+            .rev()
+            .map(|b| {
+                let u = f64::from(b) - origin;
+                let x = 100.0 + 1.3 * u + 0.02 * u * u - 0.004 * u.powi(3) + 0.0007 * u.powi(4);
+                Edge {
+                    gap: 0,
+                    x: x as f32,
+                    boundary: b,
+                    chain: 1,
+                    weight: 1.0,
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_bend_filter_is_the_quartic_fit_of_a_whole_window() {
+        let wide = wide_window(3);
+        let edges = curved_window(40, wide);
+        let origin = 40.5;
+        let fitted = Bend::fit(&edges, origin);
+        let filtered = BendFilter::new(wide).apply(&edges, origin).expect("whole");
+        for (f, g) in fitted.c.iter().zip(&filtered.c) {
+            assert!((f - g).abs() < 1e-6, "{fitted:?} vs {filtered:?}");
+        }
+        assert!((fitted.c[0] - 0.02).abs() < 1e-4 && (fitted.c[2] - 0.0007).abs() < 1e-5);
+        // A window short of an edge is not whole.
+        assert!(BendFilter::new(wide).apply(&edges[1..], origin).is_none());
+    }
+
+    #[test]
+    fn a_pixel_on_a_bent_run_gets_the_curve_s_coordinate() {
+        let wide = wide_window(3);
+        let edges = curved_window(40, wide);
+        let origin = 40.5;
+        let narrow: Vec<Edge> = edges
+            .iter()
+            .copied()
+            .filter(|e| (f64::from(e.boundary) - origin).abs() < 3.0)
+            .collect();
+        let straight = LocalFit::line(&narrow, origin, Bend::default()).expect("line");
+        let bent = LocalFit::line(&narrow, origin, Bend::fit(&edges, origin)).expect("line");
+        // The camera position of u = 0.2 on the curve.
+        let u = 0.2f64;
+        let x = 100.0 + 1.3 * u + 0.02 * u * u - 0.004 * u.powi(3) + 0.0007 * u.powi(4);
+        assert!((bent.at(x) - u).abs() < 1e-4, "bent {}", bent.at(x));
+        assert!(
+            (straight.at(x) - u).abs() > 0.03,
+            "the straight line is biased"
+        );
+    }
 
     #[test]
     fn worked_examples_of_eq_4_17() {

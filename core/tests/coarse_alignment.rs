@@ -12,7 +12,7 @@ use ris_core::mesh::{SignedDistance, TriangleMesh};
 use ris_core::register::Pose;
 
 mod common;
-use common::Rng;
+use common::{seeds, Rng};
 
 /// A gaussian bump.
 fn bump(x: f64, y: f64, cx: f64, cy: f64, r: f64, a: f64) -> f64 {
@@ -22,7 +22,10 @@ fn bump(x: f64, y: f64, cx: f64, cy: f64, r: f64, a: f64) -> f64 {
 #[test]
 fn parts_in_random_poses_with_partial_coverage_and_deformation_are_placed_right() {
     let (mut placed, mut flagged, mut worst_deformed) = (0, 0, 0.0f64);
-    for seed in 0..30u64 {
+    // 8 poses by default, the whole family of 30 in the long tier.
+    let family = seeds(8, 30);
+    let cases = family.end;
+    for seed in family {
         let mut r = Rng(seed * 131 + 7);
         let (hx, hy) = (r.range(150.0, 250.0), r.range(90.0, 140.0));
         // Panel: a saddle or dome of random curvature with three asymmetric features.
@@ -182,5 +185,10 @@ fn parts_in_random_poses_with_partial_coverage_and_deformation_are_placed_right(
         }
     }
     eprintln!("{placed} placed, {flagged} reported ambiguous or not measured; worst location error of a deformed part {worst_deformed:.3} mm");
-    assert!(placed >= 27, "{placed} of 30 placed");
+    // At most one in ten left unplaced (reported, never wrong).
+    let misses = (cases as usize).div_ceil(10);
+    assert!(
+        placed + misses >= cases as usize,
+        "{placed} of {cases} placed"
+    );
 }

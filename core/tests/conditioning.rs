@@ -11,7 +11,7 @@ use ris_core::mesh::{SignedDistance, TriangleMesh};
 use ris_core::register::Pose;
 
 mod common;
-use common::Rng;
+use common::{seeds, Rng};
 
 /// Inspect a cloud sampled from `surface` over ±hx × ±hy (CAD frame), seen from a random pose
 /// with noise; the registration starts near the truth.
@@ -71,7 +71,7 @@ fn unpinned(report: &Report) -> Vec<&ris_core::inspect::Direction> {
 
 #[test]
 fn planes_and_cylinders_are_not_measured_features_pin_every_direction() {
-    for seed in 0..6u64 {
+    for seed in seeds(3, 6) {
         let mut r = Rng(seed * 7 + 1);
         let (hx, hy) = (r.range(120.0, 300.0), r.range(90.0, 250.0));
 
@@ -138,7 +138,7 @@ fn planes_and_cylinders_are_not_measured_features_pin_every_direction() {
 
 #[test]
 fn a_gently_curved_panel_slides_along_itself_unless_a_calibrated_pose_holds_it() {
-    for seed in 0..4u64 {
+    for seed in seeds(2, 4) {
         let mut r = Rng(seed + 40);
         let (a, b) = (r.range(4000.0, 6000.0), r.range(7000.0, 9000.0));
         let surface = move |x: f64, y: f64| -x * x / a - y * y / b;

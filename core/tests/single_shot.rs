@@ -16,7 +16,7 @@ use ris_core::single_shot::{
 };
 
 mod common;
-use common::Rng;
+use common::{seeds, Rng};
 
 fn demo_file() -> SceneFile {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenes/demo.toml");
@@ -442,7 +442,7 @@ fn mark(flags: &mut [bool], p: (f64, f64), lattice: &Lattice, reach: f64) {
 #[test]
 fn decoded_x_points_are_the_primitives_that_light_them() {
     let mut rng = Rng(5);
-    for case in 0..3u64 {
+    for case in seeds(2, 3) {
         let mut f = demo_file();
         let step = [rng.range(12.0, 16.99) as u32, rng.range(12.0, 16.99) as u32];
         f.camera.noise = rng.range(1.0, 3.0);
@@ -486,7 +486,7 @@ fn decoded_x_points_are_the_primitives_that_light_them() {
 #[test]
 fn fine_patterns_decode_with_the_detector_set_for_their_spacing() {
     let mut rng = Rng(23);
-    for case in 0..3u64 {
+    for case in seeds(2, 3) {
         let mut f = demo_file();
         let s = rng.range(9.0, 11.99) as u32;
         let step = [s, s + rng.range(0.0, 1.99) as u32];
@@ -516,7 +516,7 @@ fn fine_patterns_decode_with_the_detector_set_for_their_spacing() {
 #[test]
 fn dense_regions_decode_finer_where_asked() {
     let mut rng = Rng(61);
-    for case in 0..3u64 {
+    for case in seeds(2, 3) {
         let mut f = demo_file();
         let step = [rng.range(14.0, 16.99) as u32, rng.range(14.0, 16.99) as u32];
         let (pw, ph) = (1024.0, 768.0);

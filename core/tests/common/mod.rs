@@ -22,3 +22,15 @@ impl Rng {
         (-2.0 * self.uniform().ln()).sqrt() * (std::f64::consts::TAU * self.uniform()).cos()
     }
 }
+
+/// Whether this run is the long tier (`.ci/run --long`, which sets `RIS_TIER=long`): whole
+/// seeded families and surveys. The default tier runs the first cases of each family, so every
+/// family is still exercised by `.ci/run`.
+pub fn long_tier() -> bool {
+    std::env::var("RIS_TIER").is_ok_and(|v| v == "long")
+}
+
+/// Seeds `0..default` of a family, or `0..long` in the long tier.
+pub fn seeds(default: u64, long: u64) -> std::ops::Range<u64> {
+    0..if long_tier() { long } else { default }
+}

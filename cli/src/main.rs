@@ -461,6 +461,11 @@ enum Command {
         /// Clouds of the probing sphere, one position each.
         #[arg(long, num_args = 1..)]
         sphere: Vec<PathBuf>,
+        /// Instead of measured clouds: render a whole acceptance set (7 bar, 6 flat and 10
+        /// sphere positions through the artefacts file's `[volume]`) through the sensor of
+        /// this simulator scene, and evaluate it (the clouds are written under `clouds/`).
+        #[arg(long, conflicts_with_all = ["ball_bar", "plane", "sphere"])]
+        simulate: Option<PathBuf>,
         /// Output directory (verify.json, verify.html, residual maps); must not exist or be empty.
         #[arg(long)]
         out: PathBuf,
@@ -829,17 +834,21 @@ fn main() -> Result<()> {
             ball_bar,
             plane,
             sphere,
+            simulate,
             out,
         } => {
-            let cert = commands::verify::run(
-                &artefacts,
-                &commands::verify::Clouds {
-                    ball_bar,
-                    plane,
-                    sphere,
-                },
-                &out,
-            )?;
+            let cert = match simulate {
+                Some(scene) => commands::verify::simulate(&artefacts, &scene, &out)?,
+                None => commands::verify::run(
+                    &artefacts,
+                    &commands::verify::Clouds {
+                        ball_bar,
+                        plane,
+                        sphere,
+                    },
+                    &out,
+                )?,
+            };
             match cert.verdict {
                 ris_core::verify::Status::Pass => {}
                 ris_core::verify::Status::Fail => std::process::exit(3),

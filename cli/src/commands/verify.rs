@@ -74,9 +74,79 @@ pub fn run(artefacts: &Path, clouds: &Clouds, out: &Path) -> Result<Certificate>
     let planes = load(&clouds.plane)?;
     let spheres = load(&clouds.sphere)?;
     bar.inc(1);
+    finish(&a, artefacts, [bars, planes, spheres], &[], out, &bar)
+}
+
+/// Render a whole acceptance set (7 bar, 6 flat, 10 sphere positions through the artefacts
+/// file's `[volume]`) through the sensor of `scene` (its optics, table and noise; the parallax
+/// model from its own reference plane), then evaluate it as [`run`] does; the clouds are
+/// written too, as `clouds/<position>.ply`.
+pub fn simulate(artefacts: &Path, scene: &Path, out: &Path) -> Result<Certificate> {
+    use ris_core::verify::scenes::{acceptance_set, decode_set, Placement};
+    let a = Artefacts::load(artefacts)?;
+    let volume = a.volume.as_ref().with_context(|| {
+        format!(
+            "{}: --simulate places the artefacts through the calibrated volume; add [volume]",
+            artefacts.display()
+        )
+    })?;
+    let base = ris_core::sim::Scene::load(scene)?;
+    let set = acceptance_set(&a, volume);
+    anyhow::ensure!(
+        !set.is_empty(),
+        "{}: no artefact to place (give [ball_bar], [plane] or [sphere])",
+        artefacts.display()
+    );
+    let bar = crate::progress::bar(
+        set.len() as u64 + 3,
+        &format!("rendering and decoding {} positions", set.len()),
+    );
+    let decoded = decode_set(
+        &base,
+        &a,
+        &set,
+        &ris_core::decode::DecodeParams::default(),
+        &|done, _| bar.set_position(done as u64),
+    )?;
+    let rec = ris_core::sensor::Reconstructor::parallax(
+        &base.camera,
+        base.projector.center(),
+        &decoded.reference,
+    )?;
+    let (mut bars, mut planes, mut spheres) = (vec![], vec![], vec![]);
+    let mut clouds = Vec::with_capacity(set.len());
+    for (p, d) in set.iter().zip(&decoded.positions) {
+        let cloud = rec.reconstruct(d)?;
+        let measured = MeasuredCloud {
+            name: format!("{}.ply", p.label),
+            points: cloud
+                .points
+                .iter()
+                .map(|q| Vec3::new(f64::from(q[0]), f64::from(q[1]), f64::from(q[2])))
+                .collect(),
+        };
+        match p.placement {
+            Placement::Bar { .. } => bars.push(measured),
+            Placement::Flat { .. } => planes.push(measured),
+            Placement::Sphere { .. } => spheres.push(measured),
+        }
+        clouds.push((format!("{}.ply", p.label), cloud));
+    }
+    finish(&a, artefacts, [bars, planes, spheres], &clouds, out, &bar)
+}
+
+/// Evaluate and write the output directory (with `clouds` under `clouds/`).
+fn finish(
+    a: &Artefacts,
+    artefacts: &Path,
+    [bars, planes, spheres]: [Vec<MeasuredCloud>; 3],
+    clouds: &[(String, ris_core::cloud::PointCloud)],
+    out: &Path,
+    bar: &indicatif::ProgressBar,
+) -> Result<Certificate> {
     bar.set_message("finding and fitting the artefacts");
     let (cert, maps) = evaluate(
-        &a,
+        a,
         &bars,
         &planes,
         &spheres,
@@ -92,6 +162,12 @@ pub fn run(artefacts: &Path, clouds: &Clouds, out: &Path) -> Result<Certificate>
         ris_core::io::create_dir(dir)?;
         for m in &maps {
             write_residual_map(dir, m)?;
+        }
+        if !clouds.is_empty() {
+            ris_core::io::create_dir(&dir.join("clouds"))?;
+            for (name, cloud) in clouds {
+                ris_core::io::write_atomic(&dir.join("clouds").join(name), &cloud.to_ply())?;
+            }
         }
         ris_core::io::write_atomic(&dir.join("verify.json"), &json)?;
         ris_core::io::write_atomic(&dir.join("verify.html"), html.as_bytes())

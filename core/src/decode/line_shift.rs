@@ -88,8 +88,9 @@ struct Code {
 /// Columns handled together when scanning down columns, so frame reads stay row-major.
 const BLOCK: usize = 64;
 
-/// Continuous projector coordinate per pixel (NaN where invalid) and a quality factor (1 where
-/// interpolated between edges, 0.5 where extrapolated from one side, 0 where invalid).
+/// Continuous projector coordinate per pixel (NaN where invalid), a quality factor (1 where
+/// interpolated between edges, 0.5 where extrapolated from one side, 0 where invalid) and the
+/// bend correction of each pixel's cell (0 where none; see [`add_bend`]).
 ///
 /// Along rows the result is row-major (h × w). Along columns it is *transposed* (w × h: one
 /// row per camera column), so that the filters that follow can always look across the scan
@@ -468,6 +469,10 @@ impl LocalFit {
     }
 }
 
+/// Largest bend correction of one cell, projector pixels per code step (a 20 mm sphere needs
+/// up to about a third of it near its rim).
+const MAX_BEND: f32 = 0.15;
+
 /// Edges on either side of a cell for its bend: enough for a quartic beyond the line's window.
 fn wide_window(window: usize) -> usize {
     (2 * window + 2).max(4)
@@ -633,6 +638,12 @@ fn fit_runs(
         let correction = bent_fit.map_or(0.0, |bent| {
             (value(&bent, middle) - value(&fit, middle)) as f32
         });
+        // A larger bend is a kink or a step the chain did not break, not a curve.
+        let correction = if correction.abs() <= MAX_BEND * code.step {
+            correction
+        } else {
+            0.0
+        };
         // A fitted value well outside the pixel's own code cell means the edges and the code
         // disagree (a mixed pixel): reject rather than clamp.
         let tol = code.cell_tolerance * code.step;

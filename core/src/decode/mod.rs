@@ -535,18 +535,16 @@ fn filter_across(
 /// Rows on either side that [`smooth_across`] reads.
 const SMOOTH_REACH: usize = 3;
 
-/// Savitzky–Golay weights (quadratic, 7 and 5 taps) for offsets 0, ±1, ±2, ±3 across the scan.
-const SG7: [f32; 4] = [7.0 / 21.0, 6.0 / 21.0, 3.0 / 21.0, -2.0 / 21.0];
-const SG5: [f32; 3] = [17.0 / 35.0, 12.0 / 35.0, -3.0 / 35.0];
-
 /// Average each kept coordinate of row `y` (in `d`) with its neighbours across the scan by a
-/// quadratic least-squares (Savitzky–Golay) filter over 7 lines, or 5 where only two lines on
-/// each side are kept and consistent; left alone otherwise.
+/// quadratic least-squares (Savitzky–Golay) fit over 7 lines, or 5 where the outer lines are
+/// missing or do not fit; left alone otherwise. Every line used must be kept, within
+/// `tolerance` of the pixel's own coordinate, and within a twelfth of it (a quarter of a code
+/// cell at the default) of the fitted parabola: lines from across a depth edge are not.
 ///
 /// Line shifting on neighbouring camera lines gives independent estimates, but across a
 /// curved surface the coordinate curves too: the [1, 2, 1] average moves it by a quarter of
-/// its second difference (0.01 mm inwards on a 40 mm sphere at 1.6 m). A quadratic filter
-/// leaves curvature untouched and, over 7 lines, still divides the noise by 1.7.
+/// its second difference (0.01 mm inwards on a 40 mm sphere at 1.6 m). A quadratic fit leaves
+/// curvature untouched and, over 7 lines, still divides the noise by 1.7.
 fn smooth_across(
     d: &mut [f32],
     y: usize,
@@ -568,6 +566,7 @@ fn smooth_across(
     let (a1, b1, ka1, kb1) = lines(1);
     let (a2, b2, ka2, kb2) = lines(2);
     let l3 = reach(3).then(|| lines(3));
+    let misfit = tolerance / 12.0;
     for x in 0..w {
         let v = cur[x];
         if !k0[x] {
@@ -579,14 +578,47 @@ fn smooth_across(
         if !(ok(a1, b1, ka1, kb1) && ok(a2, b2, ka2, kb2)) {
             continue;
         }
-        let inner = |w: &[f32]| w[0] * v + w[1] * (a1[x] + b1[x]) + w[2] * (a2[x] + b2[x]);
-        d[x] = match l3 {
-            Some((a3, b3, ka3, kb3)) if ok(a3, b3, ka3, kb3) => {
-                inner(&SG7) + SG7[3] * (a3[x] + b3[x])
-            }
-            _ => inner(&SG5),
-        };
+        let five = [a2[x], a1[x], v, b1[x], b2[x]];
+        let seven = l3
+            .filter(|(a3, b3, ka3, kb3)| ok(a3, b3, ka3, kb3))
+            .map(|(a3, b3, _, _)| [a3[x], a2[x], a1[x], v, b1[x], b2[x], b3[x]]);
+        if let Some(c) = seven.as_ref().and_then(|t| parabola_centre(t, misfit)) {
+            d[x] = c;
+        } else if let Some(c) = parabola_centre(&five, misfit) {
+            d[x] = c;
+        }
     }
+}
+
+/// The centre value of the least-squares parabola through `taps` (an odd count at offsets
+/// −n..=n, n = 2 or 3), or `None` when a tap lies farther than `misfit` from it.
+fn parabola_centre(taps: &[f32], misfit: f32) -> Option<f32> {
+    let n = (taps.len() / 2) as f32;
+    let (mut s0, mut s1, mut s2) = (0f32, 0f32, 0f32);
+    for (i, &t) in taps.iter().enumerate() {
+        let k = i as f32 - n;
+        s0 += t;
+        s1 += k * t;
+        s2 += k * k * t;
+    }
+    // Normal equations of c0 + c1 k + c2 k² over symmetric offsets: Σk, Σk³ vanish.
+    let m = taps.len() as f32;
+    let (k2, k4) = if taps.len() == 7 {
+        (28.0, 196.0)
+    } else {
+        (10.0, 34.0)
+    };
+    let det = m * k4 - k2 * k2;
+    let c0 = (k4 * s0 - k2 * s2) / det;
+    let c2 = (m * s2 - k2 * s0) / det;
+    let c1 = s1 / k2;
+    taps.iter()
+        .enumerate()
+        .all(|(i, &t)| {
+            let k = i as f32 - n;
+            (t - (c0 + c1 * k + c2 * k * k)).abs() <= misfit
+        })
+        .then_some(c0)
 }
 
 /// Choose the camera direction that crosses the stripes of a code: the one along which the code

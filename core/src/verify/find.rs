@@ -193,7 +193,9 @@ pub(crate) fn spheres(
         });
         count
     };
-    let seeds: Vec<usize> = s.seeds(600).collect();
+    // At least one seed per hundred points: in a sensor's whole cloud the table holds most
+    // points, and a sphere of a few hundred must still get several.
+    let seeds: Vec<usize> = s.seeds((s.points.len() / 100).clamp(600, 10_000)).collect();
     let mut hyps: Vec<(usize, Vec3)> = seeds
         .par_iter()
         .map_init(Vec::new, |nn, &i| {

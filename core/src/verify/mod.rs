@@ -19,6 +19,7 @@ mod artefacts;
 mod find;
 pub mod fit;
 mod picture;
+pub mod scenes;
 pub mod synthetic;
 
 pub use artefacts::{

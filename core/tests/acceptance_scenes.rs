@@ -203,17 +203,32 @@ fn an_acceptance_set_rendered_through_the_sensor_passes_and_each_fault_fails_its
     }
 
     // A baseline 1 % long: the parallax model scales the heights above the reference plane
-    // and, through them, positions along the baseline. Spheres read 0.25 mm large (PS fails,
-    // PF does not: they stay round), the bar along the baseline (x) 0.2 mm long.
+    // and, through them, positions along the baseline. Every sphere reads 0.15–0.3 mm larger
+    // than with the true model (PS fails on most of them at a 0.2 mm MPE; PF does not: they
+    // stay round), the bar along the baseline (x) 0.2 mm long.
     let scaled = certificate(&set, &clouds[1]);
     show("baseline +1 %", &scaled);
+    let ps = |cert: &Certificate, name: &str| {
+        cert.probing_size
+            .iter()
+            .find(|f| f.cloud == name)
+            .and_then(|f| f.error)
+            .expect("PS")
+    };
     for f in &scaled.probing_size {
-        assert_eq!(f.status, Status::Fail, "{}: PS {:?}", f.cloud, f.error);
-        assert!(
-            f.error.expect("PS") > 0.0,
-            "a longer baseline makes spheres large"
-        );
+        let grown = ps(&scaled, &f.cloud) - ps(&truth, &f.cloud);
+        assert!(grown > 0.1, "{}: PS grew by {grown:.3} mm only", f.cloud);
     }
+    let failed = scaled
+        .probing_size
+        .iter()
+        .filter(|f| f.status == Status::Fail)
+        .count();
+    assert!(
+        2 * failed >= scaled.probing_size.len(),
+        "PS failed on {failed} of {} spheres",
+        scaled.probing_size.len()
+    );
     for f in &scaled.probing_form {
         assert_eq!(f.status, Status::Pass, "{}: PF {:?}", f.cloud, f.error);
     }

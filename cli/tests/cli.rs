@@ -2364,3 +2364,61 @@ fn client_commands_say_what_to_change_when_the_daemon_cannot_be_reached() {
         }
     }
 }
+
+/// `ris verify --simulate` refuses what it cannot place or render, by name, writing nothing.
+/// (The whole simulated set, 23 renders, runs in the core's acceptance_scenes test.)
+#[test]
+fn verify_simulate_refuses_a_file_without_a_volume_and_a_bad_scene() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/verify/");
+    let text = std::fs::read_to_string(format!("{root}demo-artefacts.toml")).expect("artefacts");
+    let no_volume = dir.path().join("no-volume.toml");
+    std::fs::write(&no_volume, &text[..text.find("[volume]").expect("volume")]).expect("write");
+    let out = dir.path().join("out");
+    let scene = format!("{root}demo-sensor.toml");
+    fails(
+        &[
+            "verify",
+            "--artefacts",
+            s(&no_volume),
+            "--simulate",
+            &scene,
+            "--out",
+            s(&out),
+        ],
+        &["no-volume.toml", "[volume]"],
+        &out,
+    );
+    let bad_scene = dir.path().join("scene.toml");
+    std::fs::write(&bad_scene, "[camera]\nwidth = 0\n").expect("write");
+    let artefacts = format!("{root}demo-artefacts.toml");
+    fails(
+        &[
+            "verify",
+            "--artefacts",
+            &artefacts,
+            "--simulate",
+            s(&bad_scene),
+            "--out",
+            s(&out),
+        ],
+        &["scene.toml"],
+        &out,
+    );
+    // Measured clouds and a simulated set do not mix.
+    fails(
+        &[
+            "verify",
+            "--artefacts",
+            &artefacts,
+            "--simulate",
+            &scene,
+            "--sphere",
+            "a.ply",
+            "--out",
+            s(&out),
+        ],
+        &["--simulate"],
+        &out,
+    );
+}

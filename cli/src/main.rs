@@ -446,30 +446,9 @@ enum Command {
         out: PathBuf,
     },
     /// Acceptance test or re-verification by VDI/VDE 2634-2 (ISO 10360-13): PF, PS, SD and F
-    /// from clouds of calibrated artefacts against the MPE (exit status 3 when a figure fails,
-    /// 4 when an artefact was not measured).
-    Verify {
-        /// The artefacts file: `[ball_bar]`, `[sphere]`, `[plane]`, `[mpe]` and optionally `[volume]`.
-        #[arg(long)]
-        artefacts: PathBuf,
-        /// Clouds (PLY or E57) of the ball bar, one position each.
-        #[arg(long = "ball-bar", num_args = 1..)]
-        ball_bar: Vec<PathBuf>,
-        /// Clouds of the flat, one position each.
-        #[arg(long, num_args = 1..)]
-        plane: Vec<PathBuf>,
-        /// Clouds of the probing sphere, one position each.
-        #[arg(long, num_args = 1..)]
-        sphere: Vec<PathBuf>,
-        /// Instead of measured clouds: render a whole acceptance set (7 bar, 6 flat and 10
-        /// sphere positions through the artefacts file's `[volume]`) through the sensor of
-        /// this simulator scene, and evaluate it (the clouds are written under `clouds/`).
-        #[arg(long, conflicts_with_all = ["ball_bar", "plane", "sphere"])]
-        simulate: Option<PathBuf>,
-        /// Output directory (verify.json, verify.html, residual maps); must not exist or be empty.
-        #[arg(long)]
-        out: PathBuf,
-    },
+    /// from clouds of calibrated artefacts against the MPE, or a running cell's verification
+    /// session (exit status 3 when a figure fails, 4 when an artefact was not measured).
+    Verify(commands::verify::VerifyCommand),
     /// Experiments on simulated scenes.
     #[command(subcommand)]
     Experiment(ExperimentCommand),
@@ -829,30 +808,9 @@ fn main() -> Result<()> {
                 std::process::exit(code);
             }
         }
-        Command::Verify {
-            artefacts,
-            ball_bar,
-            plane,
-            sphere,
-            simulate,
-            out,
-        } => {
-            let cert = match simulate {
-                Some(scene) => commands::verify::simulate(&artefacts, &scene, &out)?,
-                None => commands::verify::run(
-                    &artefacts,
-                    &commands::verify::Clouds {
-                        ball_bar,
-                        plane,
-                        sphere,
-                    },
-                    &out,
-                )?,
-            };
-            match cert.verdict {
-                ris_core::verify::Status::Pass => {}
-                ris_core::verify::Status::Fail => std::process::exit(3),
-                ris_core::verify::Status::NotMeasured => std::process::exit(4),
+        Command::Verify(c) => {
+            if let Some(code) = commands::verify::command(&c)? {
+                std::process::exit(code);
             }
         }
         Command::Experiment(ExperimentCommand::Motion {

@@ -8,7 +8,7 @@ use anyhow::Result;
 use crate::config::CellConfig;
 use crate::pair::{self, Pair};
 use crate::prepared::Cache;
-use crate::protocol::{PairStatus, ScanMode, ScanState};
+use crate::protocol::{Artefact, PairStatus, ScanMode, ScanState};
 use crate::scan::{self, Part, ScanOptions, ScanReport};
 
 /// What one scan of the cell is asked to do.
@@ -22,6 +22,10 @@ pub struct ScanJob {
     pub tag: Option<String>,
     /// How the pairs acquire.
     pub mode: ScanMode,
+    /// What a `verify` scan measures: the artefact and its position.
+    pub verify: Option<(Artefact, String)>,
+    /// What the scan's inspection report must carry (the cell's verification warnings).
+    pub notes: Vec<String>,
 }
 
 /// A prepared cell.
@@ -78,6 +82,7 @@ impl Cell {
             part: job.part.and_then(|i| self.parts.get(i)),
             tag: job.tag.as_deref(),
             mode: job.mode,
+            notes: &job.notes,
         };
         scan::run(
             &self.name,

@@ -316,6 +316,24 @@ fn stream_rate() -> f64 {
     10.0
 }
 
+/// `[verify]`: the cell's acceptance test and re-verification (VDI/VDE 2634-2) through
+/// `mode: "verify"` scans.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VerifySection {
+    /// The artefacts file (`ARTEFACTS.toml`: calibrated artefacts, MPE, the calibrated volume
+    /// in the cell frame).
+    pub artefacts: PathBuf,
+    /// A verification older than this many days is stale: health and every inspection report
+    /// say so (0: never stale).
+    #[serde(default = "thirty_f")]
+    pub max_age_days: f64,
+    /// Warn when a measured SD or PF reaches this share of its MPE, or moves by it from the
+    /// last passed acceptance test's figure at the same position (0 … 1).
+    #[serde(default = "half")]
+    pub drift_share: f64,
+}
+
 /// A cell configuration file.
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -343,6 +361,9 @@ pub struct CellFile {
     /// Single-shot scans and streams.
     #[serde(default)]
     pub single_shot: SingleShotSection,
+    /// The acceptance test and re-verification.
+    #[serde(default)]
+    pub verify: Option<VerifySection>,
 }
 
 fn peer() -> String {
@@ -356,6 +377,9 @@ fn fifty() -> u32 {
 }
 fn thirty() -> u32 {
     30
+}
+fn thirty_f() -> f64 {
+    30.0
 }
 fn loopback() -> Vec<String> {
     vec!["tcp/127.0.0.1:7447".into()]
@@ -504,6 +528,8 @@ pub struct CellConfig {
     pub ros2: Ros2Section,
     /// Single-shot scans and streams (validated).
     pub single_shot: SingleShotSection,
+    /// The acceptance test and re-verification (artefacts path resolved).
+    pub verify: Option<VerifySection>,
 }
 
 /// Most scans that may wait in the queue.
@@ -1013,6 +1039,22 @@ impl CellConfig {
                 ));
             }
         }
+        let mut verify = file.verify.clone();
+        if let Some(v) = &mut verify {
+            v.artefacts = resolve(&v.artefacts);
+            if !(v.max_age_days.is_finite() && v.max_age_days >= 0.0) {
+                return Err(field(
+                    "verify.max_age_days",
+                    format!("{} must be a number of days, 0 or more", v.max_age_days),
+                ));
+            }
+            if !(v.drift_share > 0.0 && v.drift_share <= 1.0) {
+                return Err(field(
+                    "verify.drift_share",
+                    format!("{} must be a share of the MPE within (0, 1]", v.drift_share),
+                ));
+            }
+        }
         Ok(CellConfig {
             name: file.cell.name,
             zenoh,
@@ -1022,6 +1064,7 @@ impl CellConfig {
             parts,
             ros2,
             single_shot,
+            verify,
         })
     }
 
@@ -1131,6 +1174,9 @@ impl CellConfig {
                     );
                 }
             }
+        }
+        if let Some(v) = &self.verify {
+            ris_core::verify::Artefacts::load(&v.artefacts).context("verify.artefacts")?;
         }
         for p in &self.parts {
             ris_core::mesh::TriangleMesh::load(&p.cad)

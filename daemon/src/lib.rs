@@ -16,3 +16,4 @@ pub mod service;
 pub mod single_shot;
 pub mod store;
 pub mod stream;
+pub mod verification;

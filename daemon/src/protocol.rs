@@ -137,7 +137,17 @@ pub struct ScanRequest {
     /// Free text stored with the scan (`scan.json`), at most [`MAX_TAG`] characters.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tag: Option<String>,
+    /// The artefact a `verify` scan measures.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub artefact: Option<Artefact>,
+    /// The position a `verify` scan measures (letters, digits, `.`, `_`, `-`; at most
+    /// [`MAX_POSITION`] characters); measuring a position again replaces it in the session.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position: Option<String>,
 }
+
+/// Longest position name of a `verify` scan, characters.
+pub const MAX_POSITION: usize = 64;
 
 /// `text` cut to [`MAX_ECHO`] characters (with the full length said) for replies and logs.
 pub fn echo(text: &str) -> String {
@@ -180,8 +190,49 @@ impl ScanRequest {
                 return Err(format!("`tag` has {n} characters; at most {MAX_TAG}"));
             }
         }
+        let verify = req.mode == Some(ScanMode::Verify);
+        match (&req.artefact, &req.position) {
+            (Some(_), Some(p)) if verify => check_position(p)?,
+            (None, _) if verify => {
+                return Err(
+                    "a verify scan names its `artefact`: \"ball_bar\", \"sphere\" or \"plane\""
+                        .into(),
+                )
+            }
+            (_, None) if verify => {
+                return Err("a verify scan names its `position` (such as \"bar-1\")".into())
+            }
+            (None, None) => {}
+            _ => {
+                return Err(
+                    "`artefact` and `position` belong to a scan with \"mode\": \"verify\"".into(),
+                )
+            }
+        }
         Ok(req)
     }
+}
+
+/// Refuse a position name that could not name files and keys.
+fn check_position(p: &str) -> Result<(), String> {
+    let n = p.chars().count();
+    if n == 0 || n > MAX_POSITION {
+        return Err(format!(
+            "`position` {} must have 1 … {MAX_POSITION} characters",
+            echo(p)
+        ));
+    }
+    if !p
+        .chars()
+        .all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-'))
+        || p.starts_with('.')
+    {
+        return Err(format!(
+            "`position` {} must be letters, digits, `.`, `_` or `-` (such as \"bar-1\")",
+            echo(p)
+        ));
+    }
+    Ok(())
 }
 
 // Scans: how one acquires and the states it goes through.
@@ -237,6 +288,9 @@ pub enum ScanMode {
     Adaptive,
     /// One frame of the X-point pattern per pair (moving parts; sparser points).
     SingleShot,
+    /// The Gray-code sequence of a calibrated artefact in one position of a verification
+    /// session (`artefact` and `position` name it); its figures join the session.
+    Verify,
 }
 
 impl ScanMode {
@@ -246,6 +300,7 @@ impl ScanMode {
             "gray" => Some(ScanMode::Gray),
             "adaptive" => Some(ScanMode::Adaptive),
             "single-shot" => Some(ScanMode::SingleShot),
+            "verify" => Some(ScanMode::Verify),
             _ => None,
         }
     }
@@ -377,6 +432,241 @@ pub struct StreamStatus {
     pub error: Option<String>,
 }
 
+// Verification: the acceptance test and re-verification of the cell (VDI/VDE 2634-2).
+
+/// `ris/<cell>/verify`: start, finish, abort or ask about verification sessions.
+pub fn verify_key(cell: &str) -> String {
+    format!("ris/{cell}/verify")
+}
+
+/// `ris/<cell>/verifications/**`: every stored verification.
+pub fn verifications_key(cell: &str) -> String {
+    format!("ris/{cell}/verifications/**")
+}
+
+/// One item of a stored verification, under `ris/<cell>/verifications/<id>/`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VerificationItem {
+    /// `certificate`: the session with every position and each scope's certificate (JSON,
+    /// a [`VerificationRecord`]).
+    Certificate,
+    /// `page`: the certificate of the merged cell as a one-page HTML document.
+    Page,
+}
+
+impl VerificationItem {
+    /// The key of this item of verification `id` of `cell`.
+    pub fn key(self, cell: &str, id: &str) -> String {
+        let item = match self {
+            VerificationItem::Certificate => "certificate",
+            VerificationItem::Page => "page",
+        };
+        format!("ris/{cell}/verifications/{id}/{item}")
+    }
+}
+
+/// A calibrated artefact of the acceptance test (the sections of the artefacts file).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Artefact {
+    /// Two spheres on a bar: the sphere-spacing error SD.
+    BallBar,
+    /// The probing sphere: the probing errors PF and PS.
+    Sphere,
+    /// The flat: the flatness measurement error F.
+    Plane,
+}
+
+impl Artefact {
+    /// Its section of the artefacts file.
+    pub fn section(self) -> &'static str {
+        match self {
+            Artefact::BallBar => "ball_bar",
+            Artefact::Sphere => "sphere",
+            Artefact::Plane => "plane",
+        }
+    }
+}
+
+/// What a verification session is: the full acceptance test, or a quick check between tests.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VerifyKind {
+    /// The acceptance test (or a full re-verification): every position of the guideline.
+    #[default]
+    Acceptance,
+    /// A quick check: one artefact in one or a few positions, compared with the acceptance.
+    Check,
+}
+
+/// What a verify request asks.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VerifyAction {
+    /// The open session, the last verification and what health says about them.
+    #[default]
+    Status,
+    /// Open a session (refused while one is open).
+    Start,
+    /// Evaluate the open session's positions into its certificates, store and publish them.
+    Finish,
+    /// Drop the open session.
+    Abort,
+    /// Every stored verification's figures, oldest first.
+    History,
+}
+
+/// A request on `ris/<cell>/verify` (a JSON object; an empty body asks the status).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VerifyRequest {
+    /// What to do (default `status`).
+    #[serde(default)]
+    pub action: VerifyAction,
+    /// The kind of session a `start` opens (default `acceptance`).
+    #[serde(default)]
+    pub kind: VerifyKind,
+}
+
+impl VerifyRequest {
+    /// Parse a request body: a JSON object of at most [`MAX_REQUEST`] bytes, or nothing.
+    pub fn parse(body: &[u8]) -> Result<VerifyRequest, String> {
+        if body.len() > MAX_REQUEST {
+            return Err(format!(
+                "the request has {} bytes; at most {MAX_REQUEST} are accepted",
+                body.len()
+            ));
+        }
+        if body.is_empty() {
+            return Ok(VerifyRequest::default());
+        }
+        let value: serde_json::Value = serde_json::from_slice(body)
+            .map_err(|_| "malformed request: not JSON; send {\"action\": \"start\"}".to_string())?;
+        if !value.is_object() {
+            return Err("malformed request: the body must be a JSON object such as {\"action\": \"finish\"}".into());
+        }
+        serde_json::from_value(value).map_err(|e| {
+            let text = e.to_string();
+            format!(
+                "malformed request: {}",
+                text.chars().take(200).collect::<String>()
+            )
+        })
+    }
+}
+
+/// One position of a verification session: the figures of each scope (each sensor's cloud
+/// and the merged cell's, all in the cell frame).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct VerifyPosition {
+    /// The scan that measured it.
+    pub scan_id: String,
+    /// The artefact.
+    pub artefact: Artefact,
+    /// The position's name.
+    pub position: String,
+    /// When it was measured (UTC).
+    pub time: String,
+    /// Figures per scope (`s1`, …, `merged`): SD for a bar, F for a flat, PF then PS for a
+    /// sphere.
+    pub scopes: BTreeMap<String, Vec<ris_core::verify::Figure>>,
+}
+
+/// A verification session as stored (`verifications/<id>/session.json`) and published
+/// (`certificate`).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct VerificationRecord {
+    /// The session id (a directory and key segment).
+    pub id: String,
+    /// Cell.
+    pub cell: String,
+    /// Acceptance test or quick check.
+    pub kind: VerifyKind,
+    /// When it was opened (UTC).
+    pub started: String,
+    /// When it was finished (UTC); `None` while open.
+    pub finished: Option<String>,
+    /// Seconds since 1970 when it was finished.
+    pub finished_unix: Option<u64>,
+    /// The measured positions in the order they were (last) measured.
+    pub positions: Vec<VerifyPosition>,
+    /// Each scope's certificate (when finished).
+    #[serde(default)]
+    pub certificates: BTreeMap<String, ris_core::verify::Certificate>,
+    /// The session's verdict: `fail` when any scope fails, else the merged cell's.
+    pub verdict: Option<ris_core::verify::Status>,
+    /// Figures near their MPE or drifted from the last passed acceptance test.
+    #[serde(default)]
+    pub warnings: Vec<String>,
+}
+
+/// A verification in short, as health and `status` give it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct VerificationSummary {
+    /// The session id.
+    pub id: String,
+    /// Acceptance test or quick check.
+    pub kind: VerifyKind,
+    /// When it was opened (UTC).
+    pub started: String,
+    /// When it was finished (UTC).
+    pub finished: Option<String>,
+    /// Positions measured.
+    pub positions: usize,
+    /// The verdict (when finished).
+    pub verdict: Option<ris_core::verify::Status>,
+    /// Each scope's verdict (when finished).
+    #[serde(default)]
+    pub scopes: BTreeMap<String, ris_core::verify::Status>,
+    /// Its warnings.
+    #[serde(default)]
+    pub warnings: Vec<String>,
+}
+
+/// Health's account of the cell's verification.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct VerificationHealth {
+    /// The last finished verification.
+    pub last: Option<VerificationSummary>,
+    /// Its age, days.
+    pub age_days: Option<f64>,
+    /// The session being measured.
+    pub open: Option<VerificationSummary>,
+    /// What a user must know before trusting the cell's figures (never verified, the last
+    /// verification failed or is stale, figures drifting); also in every inspection report.
+    pub warnings: Vec<String>,
+}
+
+/// One scope's figures of one stored verification, for its history.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HistoryEntry {
+    /// The session id.
+    pub id: String,
+    /// Acceptance test or quick check.
+    pub kind: VerifyKind,
+    /// When it was finished (UTC).
+    pub finished: String,
+    /// The scope (`s1`, …, `merged`).
+    pub scope: String,
+    /// The scope's verdict.
+    pub verdict: ris_core::verify::Status,
+    /// Per figure (`SD`, `PF`, `PS`, `F`) the measured error of largest share of its MPE.
+    pub worst: BTreeMap<String, Worst>,
+}
+
+/// The figure of largest share of its MPE among one kind's positions.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Worst {
+    /// The position.
+    pub position: String,
+    /// The error, mm.
+    pub error: f64,
+    /// The MPE, mm.
+    pub mpe: f64,
+    /// |error| / MPE.
+    pub share: f64,
+}
+
 // Health.
 
 /// What `ris/<cell>/health` answers.
@@ -400,6 +690,9 @@ pub struct Health {
     /// The single-shot stream.
     #[serde(default)]
     pub stream: StreamStatus,
+    /// The cell's verification (when the cell has `[verify]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub verification: Option<VerificationHealth>,
 }
 
 /// One pair's line in health.

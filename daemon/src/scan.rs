@@ -180,6 +180,8 @@ pub struct ScanOptions<'a> {
     pub tag: Option<&'a str>,
     /// How the pairs acquire.
     pub mode: ScanMode,
+    /// What the inspection report must carry besides the scan's own warnings.
+    pub notes: &'a [String],
 }
 
 /// Scan with the pairs `options` selects and write the result into
@@ -487,6 +489,8 @@ fn scan_into(
     for w in &warnings {
         tracing::warn!("{w}");
     }
+    let mut warnings = warnings;
+    warnings.extend(options.notes.iter().cloned());
     let inspection = match options.part {
         Some(part) => Some(inspect_part(
             part,
@@ -574,9 +578,9 @@ fn acquire_pair(
         mode
     };
     match mode {
-        ScanMode::Gray | ScanMode::SingleShot => {
+        ScanMode::Gray | ScanMode::Verify | ScanMode::SingleShot => {
             // The Gray sequence with inverses, or the pair's one X-point or ring slide.
-            let slides: Vec<Slide> = if mode == ScanMode::Gray {
+            let slides: Vec<Slide> = if mode != ScanMode::SingleShot {
                 p.layout
                     .sequence(true)
                     .into_iter()

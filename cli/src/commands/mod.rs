@@ -20,6 +20,7 @@ pub mod simulate;
 pub mod single_shot;
 pub mod stream;
 pub mod verify;
+pub mod verify_session;
 #[cfg(all(feature = "aravis", feature = "projector"))]
 pub mod virtual_cell;
 

@@ -10,7 +10,7 @@ use std::time::Duration;
 use anyhow::{anyhow, bail, Context, Result};
 use serde_json::Value;
 
-use ris_daemon::protocol::{scans_key, ScanItem, ScanMode, ScanReply, ScanRequest};
+use ris_daemon::protocol::{scans_key, Artefact, ScanItem, ScanMode, ScanReply, ScanRequest};
 
 /// What to ask for and where to write it.
 pub struct ScanArgs {
@@ -28,6 +28,8 @@ pub struct ScanArgs {
     pub part: Option<String>,
     /// Free text stored with the scan.
     pub tag: Option<String>,
+    /// What a `verify` scan measures: the artefact and its position.
+    pub verify: Option<(Artefact, String)>,
     /// Output directory; the scan lands in `<out>/<scan id>/`.
     pub out: PathBuf,
     /// Give up after this long without the scan finishing.
@@ -89,6 +91,7 @@ pub fn command(c: &ScanCommand) -> Result<Option<i32>> {
         inspect: c.no_inspect.then_some(false),
         part: c.part.clone(),
         tag: c.tag.clone(),
+        verify: None,
         out: c.out.clone(),
         timeout: Duration::from_secs(c.timeout_s),
         credentials: c.daemon.user.clone().zip(c.daemon.password_file.clone()),
@@ -119,6 +122,8 @@ fn request(args: &ScanArgs) -> ScanRequest {
         inspect: args.inspect,
         part: args.part.clone(),
         tag: args.tag.clone(),
+        artefact: args.verify.as_ref().map(|v| v.0),
+        position: args.verify.as_ref().map(|v| v.1.clone()),
     }
 }
 
@@ -395,6 +400,7 @@ mod tests {
             inspect: None,
             part: None,
             tag: None,
+            verify: None,
             out: PathBuf::from("out"),
             timeout: Duration::from_secs(1),
         };
@@ -413,5 +419,11 @@ mod tests {
         let body = serde_json::to_vec(&request(&args)).expect("body");
         assert_eq!(ScanRequest::parse(&body).expect("parsed"), request(&args));
         assert_eq!(json(&args)["mode"], "single-shot");
+        args.mode = Some(ScanMode::Verify);
+        args.verify = Some((Artefact::BallBar, "bar-1".into()));
+        let body = serde_json::to_vec(&request(&args)).expect("body");
+        assert_eq!(ScanRequest::parse(&body).expect("parsed"), request(&args));
+        assert_eq!(json(&args)["artefact"], "ball_bar");
+        assert_eq!(json(&args)["position"], "bar-1");
     }
 }

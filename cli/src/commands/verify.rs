@@ -4,11 +4,83 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use ris_core::geometry::Vec3;
 use ris_core::verify::{
     certificate_html, evaluate, write_residual_map, Artefacts, Certificate, MeasuredCloud, Status,
     VerifyParams,
 };
+
+/// `ris verify`: clouds of calibrated artefacts evaluated here, or a running cell's
+/// verification session driven over Zenoh.
+#[derive(Clone, Debug, clap::Args)]
+pub struct VerifyCommand {
+    /// The artefacts file: `[ball_bar]`, `[sphere]`, `[plane]`, `[mpe]` and optionally
+    /// `[volume]` (for clouds evaluated here).
+    #[arg(long)]
+    pub artefacts: Option<PathBuf>,
+    /// Clouds (PLY or E57) of the ball bar, one position each.
+    #[arg(long = "ball-bar", num_args = 1..)]
+    pub ball_bar: Vec<PathBuf>,
+    /// Clouds of the flat, one position each.
+    #[arg(long, num_args = 1..)]
+    pub plane: Vec<PathBuf>,
+    /// Clouds of the probing sphere, one position each.
+    #[arg(long, num_args = 1..)]
+    pub sphere: Vec<PathBuf>,
+    /// Instead of measured clouds: render a whole acceptance set (7 bar, 6 flat and 10
+    /// sphere positions through the artefacts file's `[volume]`) through the sensor of
+    /// this simulator scene, and evaluate it (the clouds are written under `clouds/`).
+    #[arg(long, conflicts_with_all = ["ball_bar", "plane", "sphere"])]
+    pub simulate: Option<PathBuf>,
+    /// Output directory (verify.json, verify.html, residual maps; with a cell: the finished
+    /// session's certificate and page, or the measured clouds); must not exist or be empty.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// A running cell's verification session instead (`--connect`, `--cell`).
+    #[command(flatten)]
+    pub session: super::verify_session::SessionArgs,
+}
+
+/// Run `ris verify`: the exit status of the verdict (3 fail, 4 not measured).
+pub fn command(c: &VerifyCommand) -> Result<Option<i32>> {
+    if let Some(action) = c.session.action()? {
+        anyhow::ensure!(
+            c.artefacts.is_none()
+                && c.simulate.is_none()
+                && c.ball_bar.is_empty()
+                && c.plane.is_empty()
+                && c.sphere.is_empty(),
+            "a cell's verification evaluates its own scans against its [verify] artefacts file: leave out --artefacts, --simulate and the clouds"
+        );
+        return super::verify_session::run(&c.session, &action, c.out.as_deref());
+    }
+    let (Some(artefacts), Some(out)) = (&c.artefacts, &c.out) else {
+        anyhow::bail!(
+            "give --artefacts ARTEFACTS.toml and --out DIR with the clouds (--ball-bar, --plane, --sphere) or --simulate SCENE; or drive a running cell's verification with --start, --measure, --check, --finish, --status or --history"
+        );
+    };
+    let cert = match &c.simulate {
+        Some(scene) => simulate(artefacts, scene, out)?,
+        None => run(
+            artefacts,
+            &Clouds {
+                ball_bar: c.ball_bar.clone(),
+                plane: c.plane.clone(),
+                sphere: c.sphere.clone(),
+            },
+            out,
+        )?,
+    };
+    Ok(exit_code(cert.verdict))
+}
+
+/// The exit status of a verdict: none for a pass, 3 for a failure, 4 when not measured.
+pub fn exit_code(s: Status) -> Option<i32> {
+    match s {
+        Status::Pass => None,
+        Status::Fail => Some(3),
+        Status::NotMeasured => Some(4),
+    }
+}
 
 /// The clouds of one run, by artefact.
 #[derive(Clone, Debug, Default)]
@@ -50,11 +122,7 @@ fn load(paths: &[PathBuf]) -> Result<Vec<MeasuredCloud>> {
                     .file_name()
                     .map(|n| n.to_string_lossy().into_owned())
                     .unwrap_or_else(|| p.display().to_string()),
-                points: c
-                    .points
-                    .iter()
-                    .map(|q| Vec3::new(f64::from(q[0]), f64::from(q[1]), f64::from(q[2])))
-                    .collect(),
+                points: c.positions(),
             })
         })
         .collect()
@@ -119,11 +187,7 @@ pub fn simulate(artefacts: &Path, scene: &Path, out: &Path) -> Result<Certificat
         let cloud = rec.reconstruct(d)?;
         let measured = MeasuredCloud {
             name: format!("{}.ply", p.label),
-            points: cloud
-                .points
-                .iter()
-                .map(|q| Vec3::new(f64::from(q[0]), f64::from(q[1]), f64::from(q[2])))
-                .collect(),
+            points: cloud.positions(),
         };
         match p.placement {
             Placement::Bar { .. } => bars.push(measured),

@@ -150,6 +150,14 @@ impl PointCloud {
         self.retain(&keep)
     }
 
+    /// The points as double-precision vectors (what fits and measurements take), mm.
+    pub fn positions(&self) -> Vec<crate::geometry::Vec3> {
+        self.points
+            .iter()
+            .map(|p| crate::geometry::Vec3::new(p[0].into(), p[1].into(), p[2].into()))
+            .collect()
+    }
+
     /// Number of points.
     pub fn len(&self) -> usize {
         self.points.len()

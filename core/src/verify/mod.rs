@@ -25,10 +25,10 @@ pub mod synthetic;
 pub use artefacts::{
     Artefacts, BallBar, Mpe, PlaneArtefact, SpacingMpe, SphereArtefact, System, Volume,
 };
-pub use picture::{certificate_html, write_residual_map, ResidualMap};
+pub use picture::{certificate_html, certificate_page, write_residual_map, ResidualMap};
 
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::geometry::Vec3;
 use find::{FoundSphere, Searchable};
@@ -75,7 +75,7 @@ pub struct MeasuredCloud {
 }
 
 /// Outcome of one figure.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Status {
     /// Within its MPE.
@@ -87,7 +87,7 @@ pub enum Status {
 }
 
 /// Where an artefact stood.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Position {
     /// `bar 3`, `flat 2`, `sphere 7`: the kind and the index of its cloud (1-based).
     pub label: String,
@@ -107,7 +107,7 @@ pub struct Position {
 }
 
 /// One figure of one position.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Figure {
     /// The cloud file name.
     pub cloud: String,
@@ -139,7 +139,7 @@ pub struct Figure {
 }
 
 /// Whether the positions make an acceptance test or only a spot check.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Coverage {
     /// Every present artefact's positions cover the volume as the guideline recommends.
     pub acceptance_test: bool,
@@ -152,7 +152,7 @@ pub struct Coverage {
 }
 
 /// The result of an acceptance test or re-verification (`verify.json`).
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Certificate {
     /// The system and the artefacts' calibration.
     pub system: System,
@@ -254,6 +254,22 @@ pub fn evaluate(
         probing_size.push(ps);
         maps.extend(m);
     }
+    let cert = assemble(
+        artefacts,
+        [sphere_spacing, flatness, probing_form, probing_size],
+        time,
+    );
+    Ok((cert, maps))
+}
+
+/// The certificate of figures measured separately (positions scanned one at a time, as a
+/// daemon's verification session gathers them): `[sphere_spacing, flatness, probing_form,
+/// probing_size]`, with the volume's coverage and the verdict judged over all of them.
+pub fn assemble(
+    artefacts: &Artefacts,
+    [sphere_spacing, flatness, probing_form, probing_size]: [Vec<Figure>; 4],
+    time: String,
+) -> Certificate {
     let coverage = coverage(artefacts, &sphere_spacing, &flatness, &probing_form);
     let mut cert = Certificate {
         system: artefacts.system.clone(),
@@ -266,15 +282,22 @@ pub fn evaluate(
         coverage,
         verdict: Status::NotMeasured,
     };
-    let statuses: Vec<Status> = cert.figures().map(|f| f.status).collect();
-    cert.verdict = if statuses.contains(&Status::Fail) {
-        Status::Fail
-    } else if statuses.is_empty() || statuses.contains(&Status::NotMeasured) {
-        Status::NotMeasured
-    } else {
-        Status::Pass
-    };
-    Ok((cert, maps))
+    cert.verdict = verdict(cert.figures().map(|f| f.status));
+    cert
+}
+
+/// `fail` when any figure fails, else `not_measured` when any is not measured or there is
+/// none, else `pass`.
+pub fn verdict(statuses: impl IntoIterator<Item = Status>) -> Status {
+    let mut out = None;
+    for s in statuses {
+        out = match (out, s) {
+            (_, Status::Fail) | (Some(Status::Fail), _) => Some(Status::Fail),
+            (_, Status::NotMeasured) | (Some(Status::NotMeasured), _) => Some(Status::NotMeasured),
+            _ => Some(Status::Pass),
+        };
+    }
+    out.unwrap_or(Status::NotMeasured)
 }
 
 /// A figure that could not be measured.

@@ -156,7 +156,7 @@ fn rows(out: &mut String, title: &str, symbol: &str, figures: &[Figure]) {
         let map = f
             .map
             .as_deref()
-            .map(|m| format!(" <a href=\"{0}\">map</a>", escape(m)))
+            .map(|m| format!(" <a href=\"#{0}\">map</a>", escape(m)))
             .unwrap_or_default();
         let _ = write!(
             out,
@@ -180,8 +180,15 @@ fn rows(out: &mut String, title: &str, symbol: &str, figures: &[Figure]) {
 }
 
 /// The one-page certificate: the system, the artefacts and their calibration, every position
-/// with its figures against the MPE, the residual maps and the verdict.
+/// with its figures against the MPE, the residual maps (files beside the page) and the
+/// verdict.
 pub fn certificate_html(cert: &Certificate) -> String {
+    certificate_page(cert, &|file| file.to_string())
+}
+
+/// [`certificate_html`] with each residual map's image source given by `src` (its file
+/// name → a path or a `data:` URI, for a page that travels alone).
+pub fn certificate_page(cert: &Certificate, src: &dyn Fn(&str) -> String) -> String {
     let mut o = String::new();
     let name = if cert.system.name.is_empty() {
         "optical 3D measuring system".to_string()
@@ -290,9 +297,20 @@ pub fn certificate_html(cert: &Certificate) -> String {
     if !maps.is_empty() {
         o.push_str("<h2>Residual maps</h2><div>");
         for m in maps {
-            let _ = write!(o, "<img src=\"{0}\" alt=\"{0}\">", escape(m));
+            let mut files = vec![m.to_string()];
             if let Some(b) = m.strip_suffix("-a.png") {
-                let _ = write!(o, "<img src=\"{0}-b.png\" alt=\"{0}-b.png\">", escape(b));
+                files.push(format!("{b}-b.png"));
+            }
+            for (k, file) in files.iter().enumerate() {
+                // The figure's link lands on its first map.
+                let id = if k == 0 { m } else { file.as_str() };
+                let _ = write!(
+                    o,
+                    "<img id=\"{}\" src=\"{}\" alt=\"{}\">",
+                    escape(id),
+                    escape(&src(file)),
+                    escape(file)
+                );
             }
         }
         o.push_str("</div>");

@@ -10,12 +10,14 @@ use zenoh::Session;
 use crate::cell::ScanJob;
 use crate::config::CellConfig;
 use crate::protocol::{
-    echo, scan_key, state_key, stream_key, stream_sensor_key, ErrorReply, Health, ScanMode,
-    ScanReply, ScanRequest, ScanState, StreamRequest,
+    echo, scan_key, state_key, stream_key, stream_sensor_key, verify_key, ErrorReply, Health,
+    ScanMode, ScanReply, ScanRequest, ScanState, StreamRequest, VerificationItem,
+    VerificationRecord, VerifyAction, VerifyRequest,
 };
 use crate::scan;
 use crate::store;
 use crate::stream::{self, StreamControl};
+use crate::verification::{self, Ledger};
 
 use super::worker::{publish, Job};
 
@@ -42,6 +44,21 @@ pub fn validate(req: &ScanRequest, config: &CellConfig) -> Result<Option<usize>,
         ),
         None => None,
     };
+    if req.mode == Some(ScanMode::Verify) {
+        if config.verify.is_none() {
+            return Err(format!(
+                "cell {:?} has no [verify] section (its artefacts file): it cannot run verify scans",
+                config.name
+            ));
+        }
+        if req.inspect == Some(true) || req.part.is_some() {
+            return Err(
+                "a verify scan measures an artefact, not a part: leave out `part` and `inspect`"
+                    .into(),
+            );
+        }
+        return Ok(None);
+    }
     // A single-shot cloud is sparse and noisier than a Gray-code one: it is inspected only
     // when the request asks for it, never by default.
     let single = req.mode == Some(ScanMode::SingleShot);
@@ -78,6 +95,7 @@ pub(super) async fn handle_scan(
     config: &CellConfig,
     tx: &mpsc::SyncSender<Job>,
     status: &Mutex<Health>,
+    ledger: Option<&Mutex<Ledger>>,
     session: &Session,
     counter: u64,
 ) {
@@ -94,6 +112,15 @@ pub(super) async fn handle_scan(
     let outcome = ScanRequest::parse(&body)
         .and_then(|r| validate(&r, config).map(|part| (r, part)))
         .and_then(|(r, part)| {
+            if let (Some(a), Some(ledger)) = (r.artefact, ledger) {
+                ledger
+                    .lock()
+                    .map_err(|_| "the verification ledger is unavailable".to_string())?
+                    .check(a)?;
+            }
+            Ok((r, part))
+        })
+        .and_then(|(r, part)| {
             let scan_id = scan::new_scan_id(counter);
             // Counted before the worker can take it, so the count never goes stale.
             if let Ok(mut s) = status.lock() {
@@ -106,6 +133,8 @@ pub(super) async fn handle_scan(
                     part,
                     tag: r.tag.clone(),
                     mode: r.mode.unwrap_or_default(),
+                    verify: r.artefact.zip(r.position.clone()),
+                    notes: Vec::new(),
                 },
             };
             let sent = tx.try_send(job);
@@ -262,6 +291,130 @@ pub(super) async fn handle_point(q: &Query, streams: &StreamControl) {
             let reply = serde_json::json!({ "error": reason }).to_string();
             if let Err(e) = q.reply_err(reply).await {
                 tracing::warn!(error = %e, "point error reply failed");
+            }
+        }
+    }
+}
+
+/// `ris/<cell>/verify`: open, finish, abort or report the cell's verification sessions; a
+/// finished session's certificate and page are published under
+/// `ris/<cell>/verifications/<id>/`.
+pub(super) async fn handle_verify(
+    q: &Query,
+    cell: &str,
+    ledger: Option<&Mutex<Ledger>>,
+    session: &Session,
+) {
+    let key = verify_key(cell);
+    if q.key_expr().as_str() != key {
+        return;
+    }
+    let body = q
+        .payload()
+        .map(|p| p.to_bytes().into_owned())
+        .unwrap_or_default();
+    let outcome = (|| -> Result<(serde_json::Value, Option<VerificationRecord>), String> {
+        let ledger = ledger.ok_or_else(|| {
+            format!(
+                "cell {cell:?} has no [verify] section (its artefacts file): it cannot be verified"
+            )
+        })?;
+        let r = VerifyRequest::parse(&body)?;
+        let mut l = ledger
+            .lock()
+            .map_err(|_| "the verification ledger is unavailable".to_string())?;
+        fn json<T: serde::Serialize>(v: &T) -> serde_json::Value {
+            serde_json::to_value(v).unwrap_or_default()
+        }
+        Ok(match r.action {
+            VerifyAction::Status => (json(&l.health(verification::unix_now())), None),
+            VerifyAction::Start => (json(&l.start(r.kind)?), None),
+            VerifyAction::Abort => (json(&l.abort()?), None),
+            VerifyAction::History => (json(&l.history(None)), None),
+            VerifyAction::Finish => {
+                let record = l.finish()?;
+                (json(&verification::summary(&record)), Some(record))
+            }
+        })
+    })();
+    match outcome {
+        Ok((reply, finished)) => {
+            if let Some(record) = finished {
+                let certificate = serde_json::to_vec(&record).unwrap_or_default();
+                let ck = VerificationItem::Certificate.key(cell, &record.id);
+                if let Err(e) = session
+                    .put(&ck, certificate)
+                    .congestion_control(zenoh::qos::CongestionControl::Block)
+                    .await
+                {
+                    tracing::warn!(key = %ck, error = %e, "publication failed");
+                }
+                let dir = ledger
+                    .and_then(|l| l.lock().ok().map(|l| l.session_dir(&record.id)))
+                    .unwrap_or_default();
+                if let Ok(page) = tokio::fs::read(dir.join("verify.html")).await {
+                    let pk = VerificationItem::Page.key(cell, &record.id);
+                    if let Err(e) = session.put(&pk, page).await {
+                        tracing::warn!(key = %pk, error = %e, "publication failed");
+                    }
+                }
+            }
+            if let Err(e) = q.reply(&key, reply.to_string()).await {
+                tracing::warn!(error = %e, "verify reply failed");
+            }
+        }
+        Err(reason) => {
+            tracing::info!(reason, "verify request refused");
+            let reply = ErrorReply { error: reason };
+            if let Err(e) = q
+                .reply_err(serde_json::to_string(&reply).unwrap_or_default())
+                .await
+            {
+                tracing::warn!(error = %e, "verify error reply failed");
+            }
+        }
+    }
+}
+
+/// Answer `ris/<cell>/verifications/**` from the finished sessions on disk: `<id>/certificate`
+/// (the session with its certificates) and `<id>/page` (the merged cell's certificate page).
+pub(super) async fn handle_verifications(q: &Query, cell: &str, ledger: &Mutex<Ledger>) {
+    let items: Vec<(String, std::path::PathBuf)> = match ledger.lock() {
+        Ok(l) => l
+            .finished()
+            .iter()
+            .flat_map(|r| {
+                let dir = l.session_dir(&r.id);
+                [
+                    (
+                        VerificationItem::Certificate.key(cell, &r.id),
+                        dir.join("session.json"),
+                    ),
+                    (
+                        VerificationItem::Page.key(cell, &r.id),
+                        dir.join("verify.html"),
+                    ),
+                ]
+            })
+            .collect(),
+        Err(_) => return,
+    };
+    let asked = q.key_expr().clone();
+    for (key, path) in items {
+        let Some(k) = zenoh::key_expr::KeyExpr::try_from(key.clone())
+            .ok()
+            .filter(|k| asked.intersects(k))
+        else {
+            continue;
+        };
+        match tokio::fs::read(&path).await {
+            Ok(bytes) => {
+                if let Err(err) = q.reply(k, bytes).await {
+                    tracing::warn!(%key, error = %err, "stored reply failed");
+                }
+            }
+            Err(err) => {
+                tracing::warn!(path = %path.display(), error = %err, "stored file unreadable")
             }
         }
     }

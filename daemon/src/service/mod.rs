@@ -21,11 +21,18 @@ use zenoh::Session;
 use crate::cell::Cell;
 use crate::config::CellConfig;
 use crate::notify;
-use crate::protocol::{health_key, scan_key, scans_key, stream_key, stream_sensor_key, Health};
+use crate::protocol::{
+    health_key, scan_key, scans_key, stream_key, stream_sensor_key, verifications_key, verify_key,
+    Health,
+};
 use crate::store::{self, DataDirLock};
 use crate::stream::StreamControl;
+use crate::verification::{unix_now, Ledger};
 
-use handlers::{handle_point, handle_scan, handle_store, handle_stream, reply_error};
+use handlers::{
+    handle_point, handle_scan, handle_store, handle_stream, handle_verifications, handle_verify,
+    reply_error,
+};
 use worker::{worker_loop, Heartbeat, Job, WorkerContext};
 
 /// How long risd asks the network whether another daemon serves the same cell.
@@ -115,6 +122,18 @@ pub async fn run(config: CellConfig, session: Session, shutdown: CancellationTok
             rivals.join(", ")
         ));
     }
+    let ledger = match config
+        .verify
+        .as_ref()
+        .map(|v| Ledger::load(&cell, &data_dir, v))
+        .transpose()
+    {
+        Ok(l) => l.map(|l| Arc::new(Mutex::new(l))),
+        Err(e) => {
+            let _ = session.close().await;
+            return Err(e);
+        }
+    };
     let ros2 = match crate::ros2::Bridge::declare(&session, &config).await {
         Ok(b) => b.map(Arc::new),
         Err(e) => {
@@ -131,6 +150,7 @@ pub async fn run(config: CellConfig, session: Session, shutdown: CancellationTok
         pairs: Vec::new(),
         prepared: Vec::new(),
         stream: Default::default(),
+        verification: None,
     }));
     let health = session
         .declare_queryable(health_key(&cell))
@@ -153,6 +173,14 @@ pub async fn run(config: CellConfig, session: Session, shutdown: CancellationTok
         .declare_queryable(stream_sensor_key(&cell, "*", "point"))
         .await
         .map_err(|e| anyhow!("declaring the stream's point queries: {e}"))?;
+    let verify_q = session
+        .declare_queryable(verify_key(&cell))
+        .await
+        .map_err(|e| anyhow!("declaring {}: {e}", verify_key(&cell)))?;
+    let verifications_q = session
+        .declare_queryable(verifications_key(&cell))
+        .await
+        .map_err(|e| anyhow!("declaring {}: {e}", verifications_key(&cell)))?;
 
     let heartbeat = Arc::new(Heartbeat::new());
     heartbeat.beat();
@@ -217,6 +245,7 @@ pub async fn run(config: CellConfig, session: Session, shutdown: CancellationTok
                 );
                 let w_ros2 = ros2.clone();
                 let w_streams = streams.clone();
+                let w_ledger = ledger.clone();
                 let (Some(rx), Some(gone)) = (rx.take(), worker_gone_tx.take()) else {
                     break Err(anyhow!("the scan worker was started twice"));
                 };
@@ -233,6 +262,7 @@ pub async fn run(config: CellConfig, session: Session, shutdown: CancellationTok
                             storage: &storage,
                             ros2: w_ros2.as_deref(),
                             streams: &w_streams,
+                            ledger: w_ledger.as_deref(),
                         };
                         worker_loop(rx, cell_ready, &ctx);
                         drop(gone);
@@ -259,7 +289,7 @@ pub async fn run(config: CellConfig, session: Session, shutdown: CancellationTok
                     continue;
                 }
                 counter += 1;
-                handle_scan(&q, &config, &tx, &status, &session, counter).await;
+                handle_scan(&q, &config, &tx, &status, ledger.as_deref(), &session, counter).await;
             }
             q = store_q.recv_async() => {
                 let Ok(q) = q else { break Ok(()) };
@@ -276,10 +306,25 @@ pub async fn run(config: CellConfig, session: Session, shutdown: CancellationTok
                 let Ok(q) = q else { break Ok(()) };
                 handle_point(&q, &streams).await;
             }
+            q = verify_q.recv_async() => {
+                let Ok(q) = q else { break Ok(()) };
+                handle_verify(&q, &cell, ledger.as_deref(), &session).await;
+            }
+            q = verifications_q.recv_async() => {
+                let Ok(q) = q else { break Ok(()) };
+                if let Some(l) = &ledger {
+                    let (c, l) = (cell.clone(), l.clone());
+                    tokio::spawn(async move { handle_verifications(&q, &c, &l).await });
+                }
+            }
             q = health.recv_async() => {
                 let Ok(q) = q else { break Ok(()) };
+                let verification = ledger
+                    .as_ref()
+                    .and_then(|l| l.lock().ok().map(|l| l.health(unix_now())));
                 let health = status.lock().ok().map(|s| Health {
                     stream: streams.status(),
+                    verification,
                     ..s.clone()
                 });
                 let json = health
@@ -295,6 +340,7 @@ pub async fn run(config: CellConfig, session: Session, shutdown: CancellationTok
     tracing::info!("stopping: no new scans; ending the running one");
     set_state(&status, "stopping");
     drop(scan_q);
+    drop(verify_q);
     drop(stream_q);
     drop(point_q);
     streams.stop();
@@ -310,6 +356,7 @@ pub async fn run(config: CellConfig, session: Session, shutdown: CancellationTok
         w.abort();
     }
     drop(store_q);
+    drop(verifications_q);
     drop(health);
     drop(token);
     drop(ros2);

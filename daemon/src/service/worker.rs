@@ -10,10 +10,14 @@ use zenoh::qos::CongestionControl;
 use zenoh::{Session, Wait};
 
 use crate::cell::{Cell, ScanJob};
-use crate::protocol::{state_key, Health, ScanItem, ScanState};
-use crate::scan;
+use anyhow::Context;
+use ris_core::cloud::PointCloud;
+
+use crate::protocol::{state_key, Artefact, Health, ScanItem, ScanState, VerifyPosition};
+use crate::scan::{self, ScanReport};
 use crate::store::{self};
 use crate::stream::{self, StreamControl};
+use crate::verification::{self, Ledger};
 
 pub(super) struct Job {
     pub(super) scan_id: String,
@@ -66,6 +70,7 @@ pub(super) struct WorkerContext<'a> {
     pub(super) storage: &'a crate::config::StorageSection,
     pub(super) ros2: Option<&'a crate::ros2::Bridge>,
     pub(super) streams: &'a StreamControl,
+    pub(super) ledger: Option<&'a Mutex<Ledger>>,
 }
 
 pub(super) fn worker_loop(rx: mpsc::Receiver<Job>, mut cell: Cell, ctx: &WorkerContext) {
@@ -166,7 +171,14 @@ fn run_one(job: Job, cell: &mut Cell, ctx: &WorkerContext, report_pairs: &dyn Fn
     }
 }
 
-fn run_job(job: Job, cell_: &mut Cell, ctx: &WorkerContext) {
+fn run_job(mut job: Job, cell_: &mut Cell, ctx: &WorkerContext) {
+    // Every inspection report carries what the cell's verification says (never verified,
+    // failed, stale, drifting).
+    if let Some(ledger) = ctx.ledger {
+        if let Ok(l) = ledger.lock() {
+            job.scan.notes = l.warnings(verification::unix_now());
+        }
+    }
     let id = job.scan_id;
     let (session, cell) = (ctx.session, ctx.cell);
     if ctx.stopping.load(Ordering::SeqCst) {
@@ -206,8 +218,25 @@ fn run_job(job: Job, cell_: &mut Cell, ctx: &WorkerContext) {
         }
         Err(e) => tracing::warn!(error = %format!("{e:#}"), "retention failed"),
     }
+    // A verify scan's figures join the verification session before `done` goes out.
+    let result = result.and_then(|(report, dir)| {
+        let measured = match (&job.scan.verify, ctx.ledger) {
+            (Some((artefact, position)), Some(ledger)) => Some(verify_position(
+                &report, cell_, ledger, &id, *artefact, position,
+            )),
+            _ => None,
+        };
+        match measured.transpose() {
+            Ok(position) => Ok((report, dir, position)),
+            Err(e) => {
+                let reason = format!("{e:#}");
+                publish(session, cell, &id, &ScanState::Failed { reason });
+                Err(e)
+            }
+        }
+    });
     match result {
-        Ok((report, dir)) => {
+        Ok((report, dir, position)) => {
             // The clouds as written, from memory.
             for (name, bytes) in &report.clouds {
                 let key = ScanItem::Cloud(name.clone()).key(cell, &id);
@@ -238,6 +267,7 @@ fn run_job(job: Job, cell_: &mut Cell, ctx: &WorkerContext) {
                 "inspection": report.inspection,
                 "warnings": report.warnings,
                 "total": report.total,
+                "verification": position,
             });
             let key = state_key(cell, &id);
             if let Err(e) = session.put(&key, done.to_string()).wait() {
@@ -256,6 +286,54 @@ fn run_job(job: Job, cell_: &mut Cell, ctx: &WorkerContext) {
             }
         }
     }
+}
+
+/// Evaluate a verify scan's artefact in every sensor's cloud and the merged one (each in
+/// the cell frame, points outside their sensor's calibrated volume left out) and add the
+/// position to the open verification session.
+fn verify_position(
+    report: &ScanReport,
+    cell: &Cell,
+    ledger: &Mutex<Ledger>,
+    scan_id: &str,
+    artefact: Artefact,
+    position: &str,
+) -> anyhow::Result<VerifyPosition> {
+    let mut clouds = Vec::with_capacity(report.clouds.len());
+    for (name, bytes) in &report.clouds {
+        let mut cloud = PointCloud::from_ply(bytes, Path::new(&format!("{name}.ply")))
+            .with_context(|| format!("reading back the cloud of {name}"))?;
+        cloud.retain_finite();
+        cloud.drop_outside();
+        let to_cell = cell
+            .pairs
+            .iter()
+            .find(|p| p.name == *name)
+            .map(|p| p.to_common);
+        let mut points = cloud.positions();
+        if let Some(m) = to_cell {
+            let (r, t) = (m.fixed_view::<3, 3>(0, 0), m.fixed_view::<3, 1>(0, 3));
+            for p in &mut points {
+                *p = r * *p + t;
+            }
+        }
+        clouds.push((name.clone(), points));
+    }
+    let artefacts = ledger
+        .lock()
+        .map_err(|_| anyhow::anyhow!("the verification ledger is unavailable"))?
+        .artefacts()
+        .clone();
+    let measured = verification::measure(&artefacts, scan_id, artefact, position, clouds)?;
+    for (scope, figures) in &measured.position.scopes {
+        for f in figures {
+            tracing::info!(scope, position, error = ?f.error, status = ?f.status, "verification figure");
+        }
+    }
+    ledger
+        .lock()
+        .map_err(|_| anyhow::anyhow!("the verification ledger is unavailable"))?
+        .add(measured)
 }
 
 /// Publish a result file of a scan (large payloads block rather than drop).

@@ -5,6 +5,9 @@
 //! also hold the table and the stands. With the true sensor model every figure passes; with a
 //! sensor model that is wrong in a known way the figure that must catch the fault fails.
 //!
+//! Two sensors side by side, each seeing one sphere of a bar, test the cell's transform
+//! between them through the merged cloud.
+//!
 //! The default tier renders four positions (two bars, a flat, a sphere) and one bumped;
 //! the long tier (`RIS_TIER=long`, `.ci/run --long`) the whole set of 7 bars, 6 flats and 10
 //! spheres.
@@ -119,12 +122,7 @@ fn measure(base: &Scene, set: &[Placed], models: &[Model]) -> (Vec<Clouds>, Deco
                 .zip(&decoded.positions)
                 .map(|(p, d)| {
                     let cloud = rec.reconstruct(d).expect("reconstruct");
-                    let points = cloud
-                        .points
-                        .iter()
-                        .map(|q| Vec3::new(f64::from(q[0]), f64::from(q[1]), f64::from(q[2])))
-                        .collect();
-                    (format!("{}.ply", p.label), points)
+                    (format!("{}.ply", p.label), cloud.positions())
                 })
                 .collect()
         })
@@ -284,14 +282,7 @@ fn an_acceptance_set_rendered_through_the_sensor_passes_and_each_fault_fails_its
         .zip(&bumped.positions)
         .map(|(p, d)| {
             let cloud = rec.reconstruct(d).expect("reconstruct");
-            (
-                format!("{}.ply", p.label),
-                cloud
-                    .points
-                    .iter()
-                    .map(|q| Vec3::new(f64::from(q[0]), f64::from(q[1]), f64::from(q[2])))
-                    .collect(),
-            )
+            (format!("{}.ply", p.label), cloud.positions())
         })
         .collect();
     let bumped_cert = certificate(&subset, &clouds);
@@ -304,4 +295,72 @@ fn an_acceptance_set_rendered_through_the_sensor_passes_and_each_fault_fails_its
         .expect("bar 1");
     assert_eq!(diagonal.status, Status::Fail, "{diagonal:?}");
     assert_eq!(bumped_cert.verdict, Status::Fail);
+}
+
+/// Two sensors of a cell side by side, 600 mm apart along x, each seeing one sphere of a
+/// ball bar that spans both views: the bar is measured only in the merged cloud, so its SD
+/// tests the transform between the sensors. With the true transform it passes; a transform
+/// 0.4 mm off along the bar fails it; each sensor alone says the bar is not found.
+#[test]
+fn a_wrong_transform_between_two_sensors_fails_the_merged_bar() {
+    let base = sensor_scene();
+    let shift = Vec3::new(600.0, 0.0, 0.0);
+    // In the cell frame (sensor A's world): sphere A under A, sphere B under B.
+    let (a, b) = (Vec3::new(150.0, 20.0, 100.0), Vec3::new(450.0, 20.0, 100.0));
+    let placed = |label: &str, offset: Vec3| Placed {
+        label: label.to_string(),
+        placement: Placement::Bar {
+            a: a - offset,
+            b: b - offset,
+        },
+    };
+    // Each sensor's cloud in its own world frame; B's world is the cell frame moved by
+    // `shift` (its sensor → cell transform is that translation). Both sensors are the demo
+    // sensor over the same table, so one reference plane serves both.
+    let d = decode_set(
+        &base,
+        &artefacts(),
+        &[placed("bar in A", Vec3::zeros()), placed("bar in B", shift)],
+        &DecodeParams::default(),
+        &|_, _| {},
+    )
+    .expect("render and decode");
+    let rec = reconstructor(&base, &d.reference, Model::True);
+    let cloud = |k: usize| {
+        rec.reconstruct(&d.positions[k])
+            .expect("reconstruct")
+            .positions()
+    };
+    let (in_a, in_b) = (cloud(0), cloud(1));
+    let merged = |error: Vec3| -> Vec<Vec3> {
+        in_a.iter()
+            .copied()
+            .chain(in_b.iter().map(|p| p + shift + error))
+            .collect()
+    };
+    let bar = |name: &str, points: Vec<Vec3>| {
+        let set = [Placed {
+            label: name.into(),
+            placement: Placement::Bar { a, b },
+        }];
+        let cert = certificate(&set, &[(format!("{name}.ply"), points)]);
+        show(name, &cert);
+        cert.sphere_spacing[0].clone()
+    };
+    let truth = bar("true transform", merged(Vec3::zeros()));
+    assert_eq!(truth.status, Status::Pass, "{truth:?}");
+    assert!(truth.error.expect("SD").abs() < 0.1, "{truth:?}");
+    let off = bar("transform 0.4 mm off", merged(Vec3::new(0.4, 0.0, 0.0)));
+    assert_eq!(off.status, Status::Fail, "{off:?}");
+    let grown = off.error.expect("SD") - truth.error.expect("SD");
+    assert!((grown - 0.4).abs() < 0.05, "SD grew by {grown:.3} mm");
+    // Alone, neither sensor sees the bar: not measured, with the reason.
+    for (name, points) in [
+        ("sensor A alone", in_a.clone()),
+        ("sensor B alone", in_b.clone()),
+    ] {
+        let f = bar(name, points);
+        assert_eq!(f.status, Status::NotMeasured, "{name}: {f:?}");
+        assert!(f.reason.is_some());
+    }
 }

@@ -18,11 +18,15 @@ pub(crate) struct CellHasher(u64);
 
 impl std::hash::Hasher for CellHasher {
     fn finish(&self) -> u64 {
-        self.0
+        // The table indexes by the low bits: fold the well-mixed high bits into them.
+        self.0 ^ (self.0 >> 32)
     }
     fn write(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.write_u64(u64::from(b));
+        // Integer arrays (`[i32; 3]` cell keys) arrive as their bytes: eight at a time.
+        for chunk in bytes.chunks(8) {
+            let mut word = [0u8; 8];
+            word[..chunk.len()].copy_from_slice(chunk);
+            self.write_u64(u64::from_le_bytes(word));
         }
     }
     fn write_i32(&mut self, v: i32) {
@@ -224,7 +228,7 @@ pub(crate) fn spheres(
             continue;
         }
         tried.push(c);
-        if let Some(f) = refine_sphere(s, &grid, c, radius, band) {
+        if let Some(f) = refine_sphere(s, &grid, c, radius, radius_tolerance, band) {
             tried.push(f.fit.centre);
             if (f.fit.radius - radius).abs() <= radius_tolerance * radius
                 && !found
@@ -241,12 +245,14 @@ pub(crate) fn spheres(
 
 /// Fit a sphere about a hypothesis: the points within `band` of it, fitted with free radius,
 /// then again with the band narrowed to the fit's own scatter (never below what a real form
-/// error of the sphere needs: the band stays at least 0.3 mm).
+/// error of the sphere needs: the band stays at least 0.3 mm); `None` when it wanders off or
+/// its radius is beyond twice `radius_tolerance` of `radius`.
 fn refine_sphere(
     s: &Searchable<'_>,
     grid: &Grid,
     centre: Vec3,
     radius: f64,
+    radius_tolerance: f64,
     band: f64,
 ) -> Option<FoundSphere> {
     let (mut c, mut r, mut b) = (centre, radius, band);
@@ -268,6 +274,11 @@ fn refine_sphere(
         r = f.radius;
         b = (6.0 * f.rms).max(0.3).min(band.max(0.3));
         fit = Some(f);
+    }
+    // A fit far from the nominal size is no artefact whatever its rim holds: the normals
+    // (the costly part) are checked only on candidates near it.
+    if (r - radius).abs() > 2.0 * radius_tolerance * radius {
+        return None;
     }
     let inliers = s.with_normals_like(&inliers, |p| (p - c).normalize(), NORMAL_AGREEMENT_DEG);
     let pts: Vec<Vec3> = inliers.iter().map(|&j| s.points[j]).collect();

@@ -494,6 +494,9 @@ enum Command {
         /// Pairs farther apart than this (mm) are never used.
         #[arg(long)]
         max_distance: Option<f64>,
+        /// Iterations allowed; a registration that has not converged by then fails.
+        #[arg(long, default_value_t = 50)]
+        max_iterations: usize,
         /// Output transform file.
         #[arg(long)]
         out: PathBuf,
@@ -896,16 +899,22 @@ fn main() -> Result<()> {
             metric,
             trim,
             max_distance,
+            max_iterations,
             out,
         } => {
             anyhow::ensure!(
                 trim > 0.0 && trim <= 1.0,
                 "--trim must be in (0, 1], got {trim}"
             );
+            anyhow::ensure!(
+                (1..=10_000).contains(&max_iterations),
+                "--max-iterations must be 1 … 10000, got {max_iterations}"
+            );
             let params = ris_core::register::IcpParams {
                 metric: commands::register::metric(&metric)?,
                 trim,
                 max_distance: max_distance.unwrap_or(f64::INFINITY),
+                max_iterations,
                 ..Default::default()
             };
             commands::register::run(&fixed, &moving, init.as_deref(), &params, &out)?;

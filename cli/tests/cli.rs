@@ -171,6 +171,28 @@ fn bad_input_gives_clear_errors_and_no_output() {
         &out,
     );
 
+    // Nothing in view (every frame black): no points, an error, no file.
+    let bad = dir.path().join("all-black");
+    copy_dir(&cap, &bad);
+    let black = std::fs::read(bad.join("black.png")).expect("black.png");
+    for e in std::fs::read_dir(&bad).expect("dir").flatten() {
+        if e.path().extension().is_some_and(|x| x == "png") {
+            std::fs::write(e.path(), &black).expect("write");
+        }
+    }
+    fails(
+        &[
+            "reconstruct",
+            "--sensor",
+            s(&sensor),
+            s(&bad),
+            "--out",
+            s(&out),
+        ],
+        &["all-black"],
+        &out,
+    );
+
     // Unreadable frame.
     let bad = dir.path().join("unreadable");
     copy_dir(&cap, &bad);
@@ -323,6 +345,23 @@ fn register_recovers_a_known_motion_and_refuses_bad_transforms() {
     assert!(
         d.rotation.angle().to_degrees() < 0.01 && d.translation.vector.norm() < 0.02,
         "error {d:?}"
+    );
+    // Out of iterations: not converged, an error, no transform written.
+    let unconverged = dir.path().join("unconverged.toml");
+    fails(
+        &[
+            "register",
+            "--fixed",
+            s(&fp),
+            "--moving",
+            s(&mp),
+            "--max-iterations",
+            "1",
+            "--out",
+            s(&unconverged),
+        ],
+        &["did not converge", "--max-iterations", "nothing written"],
+        &unconverged,
     );
     // A non-rigid initial transform is refused with the file and field named.
     let bad = dir.path().join("bad.toml");

@@ -545,8 +545,9 @@ fn range_error([near, far]: [f64; 2]) -> Option<String> {
         .then(|| format!("[{near}, {far}]: need 0 <= near < far (mm)"))
 }
 
-/// Check Zenoh endpoints (`proto/host:port`, a port within 1 … 65535 for the IP transports),
-/// naming `key` (e.g. `zenoh.listen`, or `--listen`) in the error.
+/// Check Zenoh endpoints (`tcp/host:port`, a port within 1 … 65535), naming `key` (e.g.
+/// `zenoh.listen`, or `--listen`) in the error. risd and `ris` are built with Zenoh's TCP
+/// transport only: another protocol would fail when the session opens, so it is refused here.
 pub fn check_endpoints(ctx: &str, key: &str, list: &[String]) -> Result<()> {
     for e in list {
         let bad = |why: &str| {
@@ -558,7 +559,7 @@ pub fn check_endpoints(ctx: &str, key: &str, list: &[String]) -> Result<()> {
         let (proto, rest) = e.split_once('/').ok_or_else(|| bad("has no protocol"))?;
         let address = rest.split(['?', '#']).next().unwrap_or_default();
         match proto {
-            "tcp" | "udp" | "tls" | "quic" => {
+            "tcp" => {
                 let (host, port) = address.rsplit_once(':').ok_or_else(|| bad("has no port"))?;
                 if host.is_empty() {
                     return Err(bad("has no host"));
@@ -568,16 +569,12 @@ pub fn check_endpoints(ctx: &str, key: &str, list: &[String]) -> Result<()> {
                     _ => return Err(bad("has a port outside 1 … 65535")),
                 }
             }
-            "unixsock-stream" | "ws" | "serial" => {
-                if address.is_empty() {
-                    return Err(bad("has no address"));
-                }
+            "udp" | "tls" | "quic" | "unixsock-stream" | "ws" | "serial" => {
+                return Err(bad(&format!(
+                    "uses {proto}, a Zenoh transport this build does not include (it speaks tcp only)"
+                )))
             }
-            _ => {
-                return Err(bad(
-                    "names an unknown protocol (tcp, udp, tls, quic, unixsock-stream)",
-                ))
-            }
+            _ => return Err(bad("names an unknown protocol (use tcp)")),
         }
     }
     Ok(())
@@ -1116,6 +1113,7 @@ impl CellConfig {
     /// referenced file exists and parses (scenes, sensor files, recordings, CAD, datums).
     pub fn check_files(&self) -> Result<()> {
         self.check_build()?;
+        check_data_dir(&self.storage.data_dir)?;
         for s in &self.sensors {
             if s.kind == SensorKind::Omni {
                 match (&s.scene, &s.sensor_file) {
@@ -1187,5 +1185,44 @@ impl CellConfig {
             }
         }
         Ok(())
+    }
+}
+
+/// Whether risd could keep its scans in `dir`: an existing writable directory, or one it can
+/// create (its nearest existing ancestor is a writable directory).
+pub fn check_data_dir(dir: &Path) -> Result<()> {
+    let named = |why: String| anyhow::anyhow!("storage.data_dir: {}: {why}", dir.display());
+    let mut existing = dir;
+    loop {
+        match std::fs::metadata(existing) {
+            Ok(m) if !m.is_dir() => {
+                return Err(named(if existing == dir {
+                    "is not a directory".into()
+                } else {
+                    format!("{} is not a directory", existing.display())
+                }))
+            }
+            Ok(_) => break,
+            Err(_) => match existing.parent() {
+                Some(p) if !p.as_os_str().is_empty() => existing = p,
+                _ => {
+                    existing = Path::new(".");
+                    break;
+                }
+            },
+        }
+    }
+    // Writable as risd needs it: a file can be created and removed there.
+    let probe = existing.join(format!(".risd-check-{}", std::process::id()));
+    match std::fs::File::create(&probe) {
+        Ok(_) => {
+            let _ = std::fs::remove_file(&probe);
+            Ok(())
+        }
+        Err(e) => Err(named(format!(
+            "{} is not writable ({}): give risd a directory it may write (--data-dir or [storage] data_dir)",
+            existing.display(),
+            e.kind()
+        ))),
     }
 }

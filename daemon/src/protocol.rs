@@ -693,6 +693,9 @@ pub struct Health {
     /// The cell's verification (when the cell has `[verify]`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub verification: Option<VerificationHealth>,
+    /// Requests refused since risd started (logged at most one line per ten seconds).
+    #[serde(default)]
+    pub refused: u64,
 }
 
 /// One pair's line in health.

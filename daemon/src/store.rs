@@ -118,18 +118,27 @@ pub fn stored_items(cell: &str, data_dir: &Path) -> (Vec<String>, Vec<(String, P
     let Ok(entries) = std::fs::read_dir(data_dir.join("scans")) else {
         return (ids, items);
     };
+    // Only what lies in the store itself: a symlink (to a directory or a file elsewhere) is
+    // never served.
+    let plain_file = |p: &Path| std::fs::symlink_metadata(p).is_ok_and(|m| m.is_file());
     for e in entries.flatten() {
         let id = e.file_name().to_string_lossy().into_owned();
         let dir: PathBuf = e.path();
-        if id.ends_with(".partial") || !dir.join("scan.json").is_file() {
+        if id.ends_with(".partial")
+            || !e.file_type().is_ok_and(|t| t.is_dir())
+            || !plain_file(&dir.join("scan.json"))
+        {
             continue;
         }
         let report = Some(dir.join("report.json"))
-            .filter(|p| p.is_file())
+            .filter(|p| plain_file(p))
             .unwrap_or_else(|| dir.join("scan.json"));
         items.push((ScanItem::Report.key(cell, &id), report));
         if let Ok(files) = std::fs::read_dir(&dir) {
             for f in files.flatten() {
+                if !f.file_type().is_ok_and(|t| t.is_file()) {
+                    continue;
+                }
                 let name = f.file_name().to_string_lossy().into_owned();
                 match name.as_str() {
                     "report.html" => {
@@ -173,6 +182,45 @@ mod tests {
         );
         drop(first);
         DataDirLock::acquire(dir.path()).expect("free again");
+    }
+
+    #[test]
+    fn the_store_serves_no_symlink_out_of_itself() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let outside = tempfile::tempdir().expect("tmp");
+        let secret = outside.path().join("secret.json");
+        std::fs::write(&secret, "{\"secret\": 1}").expect("write");
+        let scans = dir.path().join("scans");
+        let a = scans.join("a");
+        std::fs::create_dir_all(&a).expect("mkdir");
+        std::fs::write(a.join("scan.json"), "{}").expect("write");
+        std::fs::write(a.join("merged.ply"), "ply").expect("write");
+        std::os::unix::fs::symlink(&secret, a.join("report.json")).expect("link");
+        std::os::unix::fs::symlink(&secret, a.join("s1.ply")).expect("link");
+        // A scan directory that is a link to a directory elsewhere.
+        std::fs::create_dir_all(outside.path().join("b")).expect("mkdir");
+        std::fs::write(outside.path().join("b/scan.json"), "{}").expect("write");
+        std::os::unix::fs::symlink(outside.path().join("b"), scans.join("b")).expect("link");
+        let (ids, items) = stored_items("c", dir.path());
+        assert_eq!(ids, vec!["a".to_string()]);
+        for (key, path) in &items {
+            assert!(
+                path.starts_with(dir.path()) && !path.is_symlink(),
+                "{key} -> {}",
+                path.display()
+            );
+        }
+        let report = items
+            .iter()
+            .find(|(k, _)| k.ends_with("/report"))
+            .expect("a report");
+        assert_eq!(
+            report.1,
+            a.join("scan.json"),
+            "the linked report.json is not served"
+        );
+        assert!(!items.iter().any(|(k, _)| k.ends_with("/cloud/s1")));
+        assert!(items.iter().any(|(k, _)| k.ends_with("/cloud/merged")));
     }
 
     #[test]

@@ -163,11 +163,17 @@ fn check_config_passes_the_shipped_examples_and_reports_missing_files() {
             .output()
             .expect("risd")
     };
-    for name in ["mock-cell", "omni-cell", "reference", "virtual-cell"] {
+    for name in [
+        "mock-cell",
+        "omni-cell",
+        "reference",
+        "virtual-cell",
+        "verify-cell",
+    ] {
         let o = check(&config_dir().join(format!("{name}.toml")));
         let out = String::from_utf8_lossy(&o.stdout);
         let built = cfg!(all(feature = "aravis", feature = "projector"));
-        if built || matches!(name, "mock-cell" | "omni-cell") {
+        if built || matches!(name, "mock-cell" | "omni-cell" | "verify-cell") {
             assert!(
                 o.status.success() && out.contains(": ok"),
                 "{name}: {out}{}",
@@ -234,6 +240,29 @@ fn check_config_passes_the_shipped_examples_and_reports_missing_files() {
         err.contains("part p") && err.contains("bad.stl") && err.contains("no usable triangle"),
         "{err}"
     );
+    // What start-up would refuse, the check refuses first: a data directory that is no
+    // writable directory, a transport this build does not speak.
+    for (extra, says) in [
+        ("[storage]\ndata_dir = \"/dev/null\"\n", "not a directory"),
+        (
+            "[storage]\ndata_dir = \"/proc/self/risd\"\n",
+            "not writable",
+        ),
+        ("[zenoh]\nlisten = [\"udp/127.0.0.1:7447\"]\n", "tcp only"),
+    ] {
+        let cell = dir.path().join("cell2.toml");
+        std::fs::write(
+            &cell,
+            format!(
+                "[cell]\nname = \"c\"\n{extra}[[sensor]]\nname = \"s1\"\nbackend = \"mock\"\nscene = \"{}\"\nto_common = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]\n",
+                config_dir().join("scenes/tiny.toml").display()
+            ),
+        )
+        .expect("cell");
+        let o = check(&cell);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && err.contains(says), "{extra}: {err}");
+    }
 }
 
 #[test]

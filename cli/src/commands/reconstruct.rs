@@ -51,6 +51,24 @@ pub fn run(
     if outside > 0 {
         tracing::warn!(outside, "points outside the calibrated volume");
     }
+    let not_finite = cloud.retain_finite();
+    anyhow::ensure!(
+        !cloud.is_empty(),
+        "{}: no points reconstructed ({} of {} pixels decoded{}{}): nothing written",
+        capture.display(),
+        decoded.valid_count(),
+        decoded.col.len(),
+        if not_finite > 0 {
+            format!("; {not_finite} points NaN or infinite, is the sensor file's model sound?")
+        } else {
+            String::new()
+        },
+        if drop_outside && outside > 0 {
+            format!("; {outside} outside the calibrated volume left out")
+        } else {
+            String::new()
+        }
+    );
     cloud
         .write_ply(out)
         .with_context(|| format!("writing {}", out.display()))?;

@@ -56,6 +56,17 @@ pub fn run(
         fixed.display(),
         moving.display()
     );
+    // A registration that ran out of iterations has not found the pose: no transform is
+    // written that a script could take for one.
+    anyhow::ensure!(
+        r.converged,
+        "ICP did not converge within {} iterations (RMS {:.3} mm, overlap {:.1} %) aligning {} onto {}: give a closer --init or more --max-iterations; nothing written",
+        params.max_iterations,
+        r.rms,
+        100.0 * r.overlap,
+        moving.display(),
+        fixed.display()
+    );
     let mut file = TransformFile::from_pose(&r.fixed_from_moving);
     file.rms = Some(r.rms);
     file.overlap = Some(r.overlap);

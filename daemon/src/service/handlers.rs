@@ -19,6 +19,7 @@ use crate::store;
 use crate::stream::{self, StreamControl};
 use crate::verification::{self, Ledger};
 
+use super::refusals::Refusals;
 use super::worker::{publish, Job};
 
 /// Validate a request against the cell and choose the part to inspect (an index into the
@@ -77,8 +78,8 @@ pub fn validate(req: &ScanRequest, config: &CellConfig) -> Result<Option<usize>,
     }
 }
 
-pub(super) async fn reply_error(q: &Query, key: &str, reason: &str) {
-    tracing::warn!(reason, "scan refused");
+pub(super) async fn reply_error(q: &Query, key: &str, reason: &str, refusals: &Refusals) {
+    refusals.note(key, reason);
     let reply = ErrorReply {
         error: reason.to_string(),
     };
@@ -90,15 +91,28 @@ pub(super) async fn reply_error(q: &Query, key: &str, reason: &str) {
     }
 }
 
+/// What a scan request is judged and queued with.
+pub(super) struct ScanDesk<'a> {
+    pub(super) config: &'a CellConfig,
+    pub(super) status: &'a Mutex<Health>,
+    pub(super) ledger: Option<&'a Mutex<Ledger>>,
+    pub(super) session: &'a Session,
+    pub(super) refusals: &'a Refusals,
+}
+
 pub(super) async fn handle_scan(
     q: &Query,
-    config: &CellConfig,
+    desk: &ScanDesk<'_>,
     tx: &mpsc::SyncSender<Job>,
-    status: &Mutex<Health>,
-    ledger: Option<&Mutex<Ledger>>,
-    session: &Session,
     counter: u64,
 ) {
+    let ScanDesk {
+        config,
+        status,
+        ledger,
+        session,
+        refusals,
+    } = *desk;
     let key = scan_key(&config.name);
     // Only the exact key starts a scan: a wildcard query (`ris/*/scan`, `**`) is not a request.
     if q.key_expr().as_str() != key {
@@ -171,7 +185,7 @@ pub(super) async fn handle_scan(
                 tracing::warn!(error = %e, "scan reply failed");
             }
         }
-        Err(reason) => reply_error(q, &key, &reason).await,
+        Err(reason) => reply_error(q, &key, &reason, refusals).await,
     }
 }
 
@@ -182,6 +196,7 @@ pub(super) async fn handle_stream(
     ready: bool,
     status: &Mutex<Health>,
     streams: &StreamControl,
+    refusals: &Refusals,
 ) {
     let key = stream_key(&config.name);
     if q.key_expr().as_str() != key {
@@ -245,7 +260,7 @@ pub(super) async fn handle_stream(
                 tracing::warn!(error = %e, "stream reply failed");
             }
         }
-        Err(reason) => reply_error(q, &key, &reason).await,
+        Err(reason) => reply_error(q, &key, &reason, refusals).await,
     }
 }
 
@@ -304,6 +319,7 @@ pub(super) async fn handle_verify(
     cell: &str,
     ledger: Option<&Mutex<Ledger>>,
     session: &Session,
+    refusals: &Refusals,
 ) {
     let key = verify_key(cell);
     if q.key_expr().as_str() != key {
@@ -363,16 +379,7 @@ pub(super) async fn handle_verify(
                 tracing::warn!(error = %e, "verify reply failed");
             }
         }
-        Err(reason) => {
-            tracing::info!(reason, "verify request refused");
-            let reply = ErrorReply { error: reason };
-            if let Err(e) = q
-                .reply_err(serde_json::to_string(&reply).unwrap_or_default())
-                .await
-            {
-                tracing::warn!(error = %e, "verify error reply failed");
-            }
-        }
+        Err(reason) => reply_error(q, &key, &reason, refusals).await,
     }
 }
 
@@ -407,6 +414,10 @@ pub(super) async fn handle_verifications(q: &Query, cell: &str, ledger: &Mutex<L
         else {
             continue;
         };
+        // Only files of the store itself, never a link out of it.
+        if !std::fs::symlink_metadata(&path).is_ok_and(|m| m.is_file()) {
+            continue;
+        }
         match tokio::fs::read(&path).await {
             Ok(bytes) => {
                 if let Err(err) = q.reply(k, bytes).await {

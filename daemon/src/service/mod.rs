@@ -4,6 +4,7 @@
 //! argument; scans run one at a time on a worker thread fed by a bounded queue.
 
 mod handlers;
+mod refusals;
 mod session;
 mod worker;
 
@@ -31,8 +32,9 @@ use crate::verification::{unix_now, Ledger};
 
 use handlers::{
     handle_point, handle_scan, handle_store, handle_stream, handle_verifications, handle_verify,
-    reply_error,
+    reply_error, ScanDesk,
 };
+use refusals::Refusals;
 use worker::{worker_loop, Heartbeat, Job, WorkerContext};
 
 /// How long risd asks the network whether another daemon serves the same cell.
@@ -151,6 +153,7 @@ pub async fn run(config: CellConfig, session: Session, shutdown: CancellationTok
         prepared: Vec::new(),
         stream: Default::default(),
         verification: None,
+        refused: 0,
     }));
     let health = session
         .declare_queryable(health_key(&cell))
@@ -182,6 +185,7 @@ pub async fn run(config: CellConfig, session: Session, shutdown: CancellationTok
         .await
         .map_err(|e| anyhow!("declaring {}: {e}", verifications_key(&cell)))?;
 
+    let refusals = Refusals::default();
     let heartbeat = Arc::new(Heartbeat::new());
     heartbeat.beat();
     let watchdog = notify::watchdog_interval().map(|every| {
@@ -285,11 +289,18 @@ pub async fn run(config: CellConfig, session: Session, shutdown: CancellationTok
             q = scan_q.recv_async() => {
                 let Ok(q) = q else { break Ok(()) };
                 if !prepared || token.is_none() {
-                    reply_error(&q, &scan_key(&cell), "the cell is starting: its pairs are being prepared; try again when ris/<cell>/health is alive").await;
+                    reply_error(&q, &scan_key(&cell), "the cell is starting: its pairs are being prepared; try again when ris/<cell>/health is alive", &refusals).await;
                     continue;
                 }
                 counter += 1;
-                handle_scan(&q, &config, &tx, &status, ledger.as_deref(), &session, counter).await;
+                let desk = ScanDesk {
+                    config: &config,
+                    status: &status,
+                    ledger: ledger.as_deref(),
+                    session: &session,
+                    refusals: &refusals,
+                };
+                handle_scan(&q, &desk, &tx, counter).await;
             }
             q = store_q.recv_async() => {
                 let Ok(q) = q else { break Ok(()) };
@@ -300,7 +311,7 @@ pub async fn run(config: CellConfig, session: Session, shutdown: CancellationTok
             }
             q = stream_q.recv_async() => {
                 let Ok(q) = q else { break Ok(()) };
-                handle_stream(&q, &config, prepared && token.is_some(), &status, &streams).await;
+                handle_stream(&q, &config, prepared && token.is_some(), &status, &streams, &refusals).await;
             }
             q = point_q.recv_async() => {
                 let Ok(q) = q else { break Ok(()) };
@@ -308,7 +319,7 @@ pub async fn run(config: CellConfig, session: Session, shutdown: CancellationTok
             }
             q = verify_q.recv_async() => {
                 let Ok(q) = q else { break Ok(()) };
-                handle_verify(&q, &cell, ledger.as_deref(), &session).await;
+                handle_verify(&q, &cell, ledger.as_deref(), &session, &refusals).await;
             }
             q = verifications_q.recv_async() => {
                 let Ok(q) = q else { break Ok(()) };
@@ -325,6 +336,7 @@ pub async fn run(config: CellConfig, session: Session, shutdown: CancellationTok
                 let health = status.lock().ok().map(|s| Health {
                     stream: streams.status(),
                     verification,
+                    refused: refusals.total(),
                     ..s.clone()
                 });
                 let json = health

@@ -31,6 +31,12 @@ pub fn state_key(cell: &str, scan_id: &str) -> String {
     ScanItem::State.key(cell, scan_id)
 }
 
+/// `ris/<cell>/claim/<claim>`: the liveliness token a daemon holds from its first instant;
+/// of two daemons of one cell the one with the smaller claim (earlier start) serves.
+pub fn claim_key(cell: &str, claim: &str) -> String {
+    format!("ris/{cell}/claim/{claim}")
+}
+
 /// `ris/<cell>/**`: everything of a cell (access control).
 pub fn cell_key(cell: &str) -> String {
     format!("ris/{cell}/**")

@@ -10,7 +10,7 @@ use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use common::{ask, client, free_port, states, wait_end, Risd};
+use common::{ask, cell_config, client, free_port, states, wait_end, InProcess, Risd};
 
 use zenoh::Wait;
 
@@ -300,4 +300,53 @@ fn sigterm_during_start_up_does_not_wait_for_preparation() {
         prepared < 4 && !log.iter().any(|l| l.contains("risd ready")),
         "preparation ran to the end before the exit: {log:#?}"
     );
+}
+
+/// Two daemons of one cell started at offsets that land the second in the first one's
+/// claim, preparation or readiness: exactly one serves (the first), the other ends saying
+/// the cell is served, every time.
+#[test]
+fn two_daemons_racing_for_one_cell_leave_exactly_one_serving() {
+    let rounds: u64 = if std::env::var("RIS_TIER").is_ok_and(|v| v == "long") {
+        20
+    } else {
+        4
+    };
+    for round in 0..rounds {
+        let tmp = tempfile::tempdir().expect("tmp");
+        let (e1, e2) = (
+            format!("tcp/127.0.0.1:{}", free_port()),
+            format!("tcp/127.0.0.1:{}", free_port()),
+        );
+        let path = config_dir().join("verify-cell.toml");
+        let first = cell_config(&path, &e1, &tmp.path().join("a"));
+        let mut second = cell_config(&path, &e2, &tmp.path().join("b"));
+        second.zenoh.connect = vec![e1.clone()];
+        // Offsets spread over 0 … 1.9 s, seeded by the round.
+        let offset = Duration::from_millis((round * 7919 + 311) % 1900);
+        let mut a = InProcess::start(first);
+        std::thread::sleep(offset);
+        let mut b = InProcess::start(second);
+        let t = Instant::now();
+        let refused = loop {
+            if let Some(outcome) = b.ended() {
+                break outcome.expect_err("the second daemon must not serve");
+            }
+            assert!(a.ended().is_none(), "round {round}: the first daemon ended");
+            assert!(
+                t.elapsed() < Duration::from_secs(90),
+                "round {round} (offset {offset:?}): the second daemon did not step aside"
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        };
+        assert!(
+            format!("{refused:#}").contains("already serves cell"),
+            "round {round}: {refused:#}"
+        );
+        a.wait_ready(Duration::from_secs(90));
+        let session = client(&e1);
+        assert!(a.alive(&session), "round {round}: the first daemon serves");
+        drop(session);
+        a.stop().expect("the first daemon stops cleanly");
+    }
 }

@@ -3,6 +3,7 @@
 //! token and a status for health. Modelled on mini-redis: [`run`] takes its stop signal as an
 //! argument; scans run one at a time on a worker thread fed by a bounded queue.
 
+mod claim;
 mod handlers;
 mod refusals;
 mod session;
@@ -30,15 +31,13 @@ use crate::store::{self, DataDirLock};
 use crate::stream::StreamControl;
 use crate::verification::{unix_now, Ledger};
 
+use claim::Claim;
 use handlers::{
     handle_point, handle_scan, handle_store, handle_stream, handle_verifications, handle_verify,
     reply_error, ScanDesk,
 };
 use refusals::Refusals;
 use worker::{worker_loop, Heartbeat, Job, WorkerContext};
-
-/// How long risd asks the network whether another daemon serves the same cell.
-const PEER_CHECK: Duration = Duration::from_millis(1500);
 
 /// Open the cell's session ([`open`]) and [`run`] the service on a tokio multi-thread runtime
 /// of its own (Zenoh needs one), blocking the calling thread until `shutdown` is cancelled or,
@@ -104,26 +103,15 @@ pub async fn run(config: CellConfig, session: Session, shutdown: CancellationTok
         }
     };
     tracing::debug!(lock = %lock.path().display(), "data directory locked");
-    // One daemon per cell name on the network: two would both scan for one request.
-    let others = session
-        .liveliness()
-        .get(health_key(&cell))
-        .timeout(PEER_CHECK)
-        .await
-        .map_err(|e| anyhow!("asking for other daemons of cell {cell}: {e}"))?;
-    let mut rivals = Vec::new();
-    while let Ok(reply) = others.recv_async().await {
-        if let Ok(sample) = reply.result() {
-            rivals.push(sample.key_expr().to_string());
+    // One daemon per cell name on the network, from the first instant: two would both scan
+    // for one request.
+    let claim = match Claim::stake(&session, &cell, config.zenoh.access.is_some()).await {
+        Ok(c) => c,
+        Err(e) => {
+            let _ = session.close().await;
+            return Err(e);
         }
-    }
-    if !rivals.is_empty() {
-        let _ = session.close().await;
-        return Err(anyhow!(
-            "another risd already serves cell {cell:?} on this Zenoh network ({}); give each cell its own [cell] name",
-            rivals.join(", ")
-        ));
-    }
+    };
     let ledger = match config
         .verify
         .as_ref()
@@ -283,6 +271,11 @@ pub async fn run(config: CellConfig, session: Session, shutdown: CancellationTok
                 notify::notify("READY=1");
                 tracing::info!(%cell, zid = %session.zid(), "risd ready");
             }
+            // While preparing, a rival that claimed first wins; once ready, newcomers see the
+            // health token and step aside.
+            rival = claim.rival(), if !prepared => {
+                break Err(rival);
+            }
             _ = &mut worker_gone, if worker.is_some() => {
                 break Err(anyhow!("the scan worker stopped unexpectedly"));
             }
@@ -371,6 +364,7 @@ pub async fn run(config: CellConfig, session: Session, shutdown: CancellationTok
     drop(verifications_q);
     drop(health);
     drop(token);
+    drop(claim);
     drop(ros2);
     session
         .close()

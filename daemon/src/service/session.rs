@@ -5,7 +5,10 @@ use anyhow::{anyhow, Result};
 use zenoh::Session;
 
 use crate::config::CellConfig;
-use crate::protocol::{cell_key, health_key, scan_key, scans_key, stream_key, stream_sensor_key};
+use crate::protocol::{
+    cell_key, claim_key, health_key, scan_key, scans_key, stream_key, stream_sensor_key,
+    verifications_key, verify_key,
+};
 
 /// A Zenoh configuration of `mode` (`peer` or `client`) with these endpoints and no multicast
 /// scouting: RIS talks to the endpoints it is given, nothing else.
@@ -24,7 +27,8 @@ pub fn zenoh_config(mode: &str, listen: &[String], connect: &[String]) -> Result
 }
 
 /// Zenoh authentication and access control for `cell` (SPEC §12 keys): operators may query
-/// `scan` and `stream`; users may ask streamed points; operators and readers may query health and stored scans, subscribe to the cell's
+/// `scan`, `stream` and `verify`, and hold the cell's claim (a daemon logged in as an
+/// operator); users may ask streamed points; operators and readers may query health and stored scans, subscribe to the cell's
 /// publications and see its liveliness; everything else, publishing under `ris/<cell>/**`
 /// included, is denied. `ros2` adds the cell's ROS 2 topics and liveliness tokens (see
 /// [`crate::ros2::acl_keys`]) to what users may follow.
@@ -42,7 +46,7 @@ pub fn apply_access(
     let mut policies = Vec::new();
     if !access.operators.is_empty() {
         subjects.push(serde_json::json!({"id": "operators", "usernames": access.operators}));
-        policies.push(serde_json::json!({"rules": ["scan"], "subjects": ["operators"]}));
+        policies.push(serde_json::json!({"rules": ["scan", "claim"], "subjects": ["operators"]}));
     }
     if !both.is_empty() {
         subjects.push(serde_json::json!({"id": "users", "usernames": both}));
@@ -54,14 +58,17 @@ pub fn apply_access(
         "default_permission": "deny",
         "rules": [
             {"id": "scan", "permission": "allow", "flows": ["ingress", "egress"],
-             "messages": ["query", "reply"], "key_exprs": [scan_key(cell), stream_key(cell)]},
+             "messages": ["query", "reply"], "key_exprs": [scan_key(cell), stream_key(cell), verify_key(cell)]},
             {"id": "read", "permission": "allow", "flows": ["ingress", "egress"],
              "messages": ["query", "reply"],
-             "key_exprs": [health_key(cell), scans_key(cell), stream_sensor_key(cell, "*", "point")]},
+             "key_exprs": [health_key(cell), scans_key(cell), verifications_key(cell), stream_sensor_key(cell, "*", "point")]},
             {"id": "follow", "permission": "allow", "flows": ["ingress"],
              "messages": ["declare_subscriber"], "key_exprs": follow},
             {"id": "follow-out", "permission": "allow", "flows": ["egress"],
              "messages": ["put"], "key_exprs": follow},
+            {"id": "claim", "permission": "allow", "flows": ["ingress", "egress"],
+             "messages": ["liveliness_query", "declare_liveliness_subscriber", "liveliness_token", "reply"],
+             "key_exprs": [claim_key(cell, "*")]},
             {"id": "alive", "permission": "allow", "flows": ["ingress", "egress"],
              "messages": ["liveliness_query", "declare_liveliness_subscriber", "liveliness_token", "reply"],
              "key_exprs": alive},

@@ -408,6 +408,30 @@ impl InProcess {
         let _ = session.close().wait();
     }
 
+    /// The service's outcome if it has ended (without waiting).
+    pub fn ended(&mut self) -> Option<anyhow::Result<()>> {
+        if !self.thread.as_ref()?.is_finished() {
+            return None;
+        }
+        match self.thread.take().map(|t| t.join()) {
+            Some(Ok(outcome)) => Some(outcome),
+            Some(Err(_)) => Some(Err(anyhow::anyhow!("the service thread panicked"))),
+            None => None,
+        }
+    }
+
+    /// Whether the cell's health token is alive, seen through `session`.
+    pub fn alive(&self, session: &zenoh::Session) -> bool {
+        session
+            .liveliness()
+            .get(ris_daemon::protocol::health_key(&self.cell))
+            .timeout(Duration::from_millis(500))
+            .wait()
+            .ok()
+            .and_then(|replies| replies.recv().ok())
+            .is_some_and(|r| r.result().is_ok())
+    }
+
     /// Cancel the service and wait for it: its outcome.
     pub fn stop(mut self) -> anyhow::Result<()> {
         self.shutdown.cancel();

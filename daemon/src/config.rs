@@ -1177,11 +1177,19 @@ impl CellConfig {
             ris_core::verify::Artefacts::load(&v.artefacts).context("verify.artefacts")?;
         }
         for p in &self.parts {
-            ris_core::mesh::TriangleMesh::load(&p.cad)
+            let mesh = ris_core::mesh::TriangleMesh::load(&p.cad)
                 .with_context(|| format!("part {}: CAD", p.id))?;
             if let Some(d) = &p.datums {
-                ris_core::inspect::load_datums(d)
+                let datums = ris_core::inspect::load_datums(d)
                     .with_context(|| format!("part {}: datums", p.id))?;
+                if let Some(bounds) = mesh.bounds() {
+                    ris_core::inspect::check_datums_against(
+                        &d.display().to_string(),
+                        &datums,
+                        bounds,
+                    )
+                    .with_context(|| format!("part {}: datums", p.id))?;
+                }
             }
         }
         Ok(())

@@ -263,6 +263,28 @@ fn check_config_passes_the_shipped_examples_and_reports_missing_files() {
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(!o.status.success() && err.contains(says), "{extra}: {err}");
     }
+    // A datum larger than its part would size the inspection's work by its radius: refused.
+    std::fs::write(
+        dir.path().join("huge.toml"),
+        "[[datum]]\nname = \"A\"\nposition = [0.0, 0.0, 0.0]\nradius = 1e9\n",
+    )
+    .expect("datums");
+    let cell = dir.path().join("cell3.toml");
+    std::fs::write(
+        &cell,
+        format!(
+            "[cell]\nname = \"c\"\n[[sensor]]\nname = \"s1\"\nbackend = \"mock\"\nscene = \"{}\"\nto_common = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]\n[[part]]\nid = \"p\"\ncad = \"{}\"\ndatums = \"huge.toml\"\ntolerance = 0.5\n",
+            config_dir().join("scenes/tiny.toml").display(),
+            config_dir().join("mock-cell/panel.stl").display()
+        ),
+    )
+    .expect("cell");
+    let o = check(&cell);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("huge.toml") && err.contains("datum[0].radius"),
+        "{err}"
+    );
 }
 
 #[test]

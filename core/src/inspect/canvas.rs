@@ -107,7 +107,9 @@ impl Canvas {
 
     /// A line `width` pixels wide; `dash` > 0 draws dashes of that length.
     pub fn line(&mut self, a: (f64, f64), b: (f64, f64), c: [u8; 3], width: i64, dash: usize) {
-        let n = ((b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil() as usize).max(1);
+        // Never more steps than the canvas could show (a far end point is no reason to work).
+        let n =
+            ((b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil() as usize).clamp(1, self.most_steps());
         for s in 0..=n {
             if dash > 0 && (s / dash) % 2 == 1 {
                 continue;
@@ -120,7 +122,7 @@ impl Canvas {
     }
 
     pub fn circle(&mut self, centre: (f64, f64), r: f64, c: [u8; 3], width: i64) {
-        let n = ((2.0 * std::f64::consts::PI * r).ceil() as usize).max(8);
+        let n = ((2.0 * std::f64::consts::PI * r).ceil() as usize).clamp(8, self.most_steps());
         for s in 0..n {
             let a = 2.0 * std::f64::consts::PI * s as f64 / n as f64;
             let (x, y) = (centre.0 + r * a.cos(), centre.1 + r * a.sin());
@@ -132,6 +134,11 @@ impl Canvas {
                 c,
             );
         }
+    }
+
+    /// The most steps a line or circle is drawn with: a few per pixel of the canvas's edge.
+    fn most_steps(&self) -> usize {
+        8 * (self.width + self.height).max(1)
     }
 
     /// Width in pixels of `text` at `size`.
@@ -248,5 +255,18 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn huge_circles_and_far_lines_cost_no_more_than_the_canvas() {
+        let mut c = Canvas::new(64, 48, [255, 255, 255]);
+        // Unbounded, these would take ceil(2π·1e12) and 1e15 steps.
+        c.circle((32.0, 24.0), 1e12, [0, 0, 0], 1);
+        c.line((0.0, 0.0), (1e15, 3.0), [0, 0, 0], 1, 0);
+        c.circle((32.0, 24.0), f64::NAN, [0, 0, 0], 1);
+        assert!(
+            c.rgb.iter().any(|&v| v == 0),
+            "the line's visible part is drawn"
+        );
     }
 }

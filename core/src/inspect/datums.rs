@@ -121,6 +121,45 @@ pub fn load_datums(path: &Path) -> Result<Vec<Datum>> {
     validate(&path.display().to_string(), f.datum)
 }
 
+/// Refuse datums that cannot belong to a part whose CAD spans `lo … hi`: a radius beyond the
+/// box's diagonal, or a centre farther than a diagonal outside it. Such a datum is a typing
+/// error, and its radius sizes work (the points it selects, the circle drawn for it).
+pub fn check_against(ctx: &str, datums: &[Datum], (lo, hi): ([f64; 3], [f64; 3])) -> Result<()> {
+    let diagonal = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
+    for (i, d) in datums.iter().enumerate() {
+        if d.radius > diagonal {
+            return Err(Error::invalid(
+                ctx,
+                format!("datum[{i}].radius"),
+                format!(
+                    "{} mm is larger than the part itself (its CAD's diagonal is {diagonal:.0} mm)",
+                    d.radius
+                ),
+            ));
+        }
+        let outside = (0..3)
+            .map(|k| {
+                (lo[k] - d.position[k])
+                    .max(d.position[k] - hi[k])
+                    .max(0.0)
+                    .powi(2)
+            })
+            .sum::<f64>()
+            .sqrt();
+        if outside > diagonal {
+            return Err(Error::invalid(
+                ctx,
+                format!("datum[{i}].position"),
+                format!(
+                    "{:?} lies {outside:.0} mm outside the part's CAD (whose diagonal is {diagonal:.0} mm): is it in the CAD's frame?",
+                    d.position
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Check datums (see [`load_datums`]); `ctx` names their source in errors.
 pub fn validate(ctx: &str, mut datums: Vec<Datum>) -> Result<Vec<Datum>> {
     let bad = |i: usize, field: &str, msg: String| {
@@ -305,5 +344,28 @@ mod tests {
             .expect_err("seven")
             .to_string()
             .contains("a rigid part has 6"));
+    }
+
+    #[test]
+    fn a_datum_larger_than_its_part_or_far_from_it_is_refused_by_field() {
+        let datum = |radius: f64, position: [f64; 3]| Datum {
+            position,
+            radius,
+            ..toml::from_str::<Datum>("name = \"A\"\nposition = [0.0, 0.0, 0.0]\nradius = 1.0\n")
+                .expect("datum")
+        };
+        let part = ([-500.0, -400.0, -50.0], [500.0, 400.0, 50.0]);
+        check_against("d.toml", &[datum(40.0, [100.0, 0.0, 0.0])], part).expect("a sane datum");
+        for (d, field) in [
+            (datum(1e9, [0.0; 3]), "datum[0].radius"),
+            (datum(1e300, [0.0; 3]), "datum[0].radius"),
+            (datum(f64::MAX, [0.0; 3]), "datum[0].radius"),
+            (datum(10.0, [1e7, 0.0, 0.0]), "datum[0].position"),
+        ] {
+            let e = check_against("d.toml", &[d], part)
+                .expect_err(field)
+                .to_string();
+            assert!(e.contains("d.toml") && e.contains(field), "{e}");
+        }
     }
 }

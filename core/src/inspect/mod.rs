@@ -28,7 +28,10 @@ pub use alignment::Alignment;
 pub use canvas::Label;
 pub use conditioning::{analyse as conditioning, Conditioning, Direction, UNPINNED_STRENGTH};
 pub use coverage::{coverage, Coverage};
-pub use datums::{level_dofs, load_datums, validate as validate_datums, Datum, Feature};
+pub use datums::{
+    check_against as check_datums_against, level_dofs, load_datums, validate as validate_datums,
+    Datum, Feature,
+};
 pub use frame::DatumMeasurement;
 pub use output::{
     deviation_colour, render_deviation_map, verdict_colour, write_deviation_ply,
@@ -112,6 +115,9 @@ pub fn inspect(
         non_finite = cloud.len() - finite.len();
         &finite
     };
+    if let Some(bounds) = cad.mesh().bounds() {
+        datums::check_against("datums", &params.datums, bounds)?;
+    }
     if !(0.0..=1.0).contains(&params.min_coverage) {
         return Err(Error::invalid(
             "inspection",

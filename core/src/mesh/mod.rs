@@ -22,6 +22,20 @@ pub struct TriangleMesh {
 }
 
 impl TriangleMesh {
+    /// Axis-aligned bounds of the vertices (`None` without vertices).
+    pub fn bounds(&self) -> Option<([f64; 3], [f64; 3])> {
+        let first = self.vertices.first()?;
+        let mut lo = [first.x, first.y, first.z];
+        let mut hi = lo;
+        for v in &self.vertices {
+            for k in 0..3 {
+                lo[k] = lo[k].min(v[k]);
+                hi[k] = hi[k].max(v[k]);
+            }
+        }
+        Some((lo, hi))
+    }
+
     /// Read a mesh in any supported format: STL (binary or ASCII), PLY (ASCII or binary, a
     /// `vertex` and a `face` element; polygons split into fans) or Wavefront OBJ (`v` and `f`
     /// lines; polygons split into fans). The format is recognised by content (`ply` magic, STL

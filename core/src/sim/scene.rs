@@ -348,6 +348,19 @@ impl Scene {
                 ));
             }
         }
+        // The blur sizes the light profiles (their kernel spans several σ): bounded by the
+        // projector it blurs.
+        let max_blur = f64::from(p.width.min(p.height)) / 8.0;
+        if p.blur > max_blur {
+            return Err(Error::invalid(
+                ctx,
+                "projector.blur",
+                format!(
+                    "{} px is beyond an eighth of the {} x {} projector ({max_blur} px): a projector that blurred so much would show no stripes",
+                    p.blur, p.width, p.height
+                ),
+            ));
+        }
         if file.render.supersample == 0 || file.render.supersample > 16 {
             return Err(Error::invalid(ctx, "render.supersample", "must be 1..=16"));
         }
@@ -651,5 +664,29 @@ impl Scene {
             }
         }
         best
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_blur_beyond_the_projector_is_refused_by_field() {
+        let tiny = include_str!("../../../config/scenes/tiny.toml");
+        let parse = |blur: &str| {
+            let text = tiny.replace("blur = 0.5", &format!("blur = {blur}"));
+            assert!(text.contains(&format!("blur = {blur}")));
+            let file: SceneFile = toml::from_str(&text).expect("toml");
+            Scene::from_file(file, Path::new("."), "tiny.toml")
+        };
+        assert!(parse("2.0").is_ok());
+        for blur in ["100000.0", "1e300"] {
+            let e = parse(blur).err().expect(blur).to_string();
+            assert!(
+                e.contains("tiny.toml") && e.contains("projector.blur"),
+                "{e}"
+            );
+        }
     }
 }

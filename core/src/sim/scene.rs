@@ -682,7 +682,7 @@ mod tests {
         };
         assert!(parse("2.0").is_ok());
         for blur in ["100000.0", "1e300"] {
-            let e = parse(blur).err().expect(blur).to_string();
+            let e = parse(blur).expect_err(blur).to_string();
             assert!(
                 e.contains("tiny.toml") && e.contains("projector.blur"),
                 "{e}"

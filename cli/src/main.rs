@@ -441,6 +441,11 @@ enum Command {
         /// Minimum fraction of the CAD surface the cloud must cover for a verdict (0 … 1).
         #[arg(long, default_value_t = 0.5)]
         min_coverage: f64,
+        /// The pose when it is known, so nothing is searched or fitted: `known` (the cloud is in
+        /// the CAD's frame already) or a transform file (TOML `matrix`, cad_from_cloud, as
+        /// `ris register` writes it). Without it the pose is found.
+        #[arg(long, value_name = "known|FILE")]
+        pose: Option<String>,
         /// Output directory (deviation.ply, deviation.png, report.json).
         #[arg(long)]
         out: PathBuf,
@@ -797,6 +802,7 @@ fn main() -> Result<()> {
             datums,
             tolerance,
             min_coverage,
+            pose,
             out,
         } => {
             let report = commands::inspect::run(
@@ -805,6 +811,7 @@ fn main() -> Result<()> {
                 datums.as_deref(),
                 tolerance,
                 min_coverage,
+                pose.as_deref(),
                 &out,
             )?;
             if let Some(code) = commands::verdict_exit_code(&report.verdict) {

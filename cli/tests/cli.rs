@@ -549,6 +549,81 @@ fn inspect_writes_deviation_map_report_and_exit_status() {
         s(&out2),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
+    // A known pose: nothing is fitted. Where the scan lies (1 mm above the CAD) every point
+    // is out of a 0.5 mm tolerance; with the transform that puts it back, only the dent is.
+    let known = |pose: &str, name: &str| -> serde_json::Value {
+        let dir_out = dir.path().join(name);
+        let o = ris(&[
+            "inspect",
+            "--cloud",
+            s(&cp),
+            "--cad",
+            s(&cad),
+            "--tolerance",
+            "0.5",
+            "--pose",
+            pose,
+            "--out",
+            s(&dir_out),
+        ]);
+        assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
+        serde_json::from_str(&std::fs::read_to_string(dir_out.join("report.json")).expect("report"))
+            .expect("json")
+    };
+    let lifted = known("known", "known");
+    assert_eq!(
+        lifted["registration"]["mode"], "known pose",
+        "{}",
+        lifted["registration"]
+    );
+    assert!(
+        (lifted["statistics"]["mean"].as_f64().expect("mean").abs() - 1.0).abs() < 0.02,
+        "{}",
+        lifted["statistics"]
+    );
+    assert!(
+        lifted["statistics"]["within_tolerance"]
+            .as_f64()
+            .expect("share")
+            < 0.01
+    );
+    let back = dir.path().join("down.toml");
+    std::fs::write(
+        &back,
+        "matrix = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, -1.0], [0.0, 0.0, 0.0, 1.0]]\n",
+    )
+    .expect("transform");
+    let placed = known(s(&back), "placed");
+    let region = &placed["regions_out_of_tolerance"][0];
+    assert!(
+        (region["centroid"][0].as_f64().expect("x") - 50.0).abs() < 3.0
+            && (region["peak_deviation_mm"].as_f64().expect("peak") + 0.8).abs() < 0.05,
+        "{region}"
+    );
+    assert!(
+        placed["statistics"]["within_tolerance"]
+            .as_f64()
+            .expect("share")
+            > 0.97
+    );
+    let never = dir.path().join("never-pose");
+    fails(
+        &[
+            "inspect",
+            "--cloud",
+            s(&cp),
+            "--cad",
+            s(&cad),
+            "--tolerance",
+            "0.5",
+            "--pose",
+            s(&dir.path().join("nope.toml")),
+            "--out",
+            s(&never),
+        ],
+        &["--pose", "nope.toml"],
+        &never,
+    );
     // A cloud of one corner of the part measures too little of it for a verdict: not
     // measured, exit status 4, never a pass.
     let mut corner = cloud.clone();

@@ -18,12 +18,21 @@ pub fn run(
     datums: Option<&Path>,
     tolerance: f64,
     min_coverage: f64,
+    pose: Option<&str>,
     out: &Path,
 ) -> Result<Report> {
     anyhow::ensure!(
         tolerance.is_finite() && tolerance > 0.0,
         "--tolerance must be a positive number of mm, got {tolerance}"
     );
+    let known = match pose {
+        None => None,
+        Some("known") => Some(ris_core::register::Pose::identity()),
+        Some(file) => Some(
+            ris_core::register::TransformFile::load(Path::new(file))
+                .with_context(|| format!("--pose: reading the transform {file}"))?,
+        ),
+    };
     let bar = crate::progress::bar(5, "reading cloud");
     let mut c =
         PointCloud::read_ply(cloud).with_context(|| format!("reading {}", cloud.display()))?;
@@ -41,7 +50,11 @@ pub fn run(
     bar.set_message("indexing CAD");
     let sd = SignedDistance::new(mesh);
     bar.inc(1);
-    bar.set_message("registering");
+    bar.set_message(if known.is_some() {
+        "measuring deviations"
+    } else {
+        "registering"
+    });
     let pts: Vec<[f64; 3]> = c
         .points
         .iter()
@@ -54,6 +67,8 @@ pub fn run(
             tolerance,
             datums: datums.clone(),
             min_coverage,
+            init: known,
+            fit_pose: known.is_none(),
             ..InspectParams::default()
         },
     )
@@ -93,7 +108,7 @@ pub fn run(
         );
     }
     println!(
-        "{}: {} points, {:.1} % of the CAD surface measured, deviation mean {:+.3} mm, RMS {:.3} mm, range {:+.3} … {:+.3} mm, {:.1} % within ±{tolerance} mm ({} registration, {:.1} s)",
+        "{}: {} points, {:.1} % of the CAD surface measured, deviation mean {:+.3} mm, RMS {:.3} mm, range {:+.3} … {:+.3} mm, {:.1} % within ±{tolerance} mm ({}, {:.1} s)",
         r.report.verdict.to_uppercase().replace('_', " "),
         s.points,
         100.0 * r.report.coverage.fraction,
@@ -102,7 +117,10 @@ pub fn run(
         s.min,
         s.max,
         100.0 * s.within_tolerance,
-        r.report.registration.mode,
+        match r.report.registration.mode.as_str() {
+            "known pose" => "at the known pose".to_string(),
+            mode => format!("{mode} registration"),
+        },
         elapsed.as_secs_f64()
     );
     for reason in &r.report.reasons {

@@ -53,6 +53,19 @@ pub struct Conditioning {
     pub pinned: bool,
 }
 
+impl Conditioning {
+    /// Nothing was fitted (a known pose): no direction to pin, nothing to report.
+    pub fn not_fitted() -> Conditioning {
+        Conditioning {
+            points: 0,
+            centre: [0.0; 3],
+            radius_mm: 0.0,
+            directions: Vec::new(),
+            pinned: true,
+        }
+    }
+}
+
 impl Direction {
     /// The direction of a motion `v` (scaled rotation, then translation) of the given
     /// `strength`: named by its dominant part, with the slide a `tolerance`-sized systematic

@@ -59,6 +59,10 @@ pub struct InspectParams {
     pub datums: Vec<Datum>,
     /// Initial cad_from_cloud; `None` = coarse alignment by principal axes.
     pub init: Option<Pose>,
+    /// Register the cloud (from `init` or a coarse alignment); `false`: `init` is the pose as
+    /// known (a calibrated cell, a measured transform) and nothing is fitted, so the
+    /// deviations are those of the cloud where it lies.
+    pub fit_pose: bool,
     /// Iteration limit of each fit.
     pub max_iterations: usize,
     /// Points used for fitting (a uniform subsample of the cloud; deviations use every point).
@@ -76,6 +80,7 @@ impl Default for InspectParams {
             tolerance: 0.5,
             datums: Vec::new(),
             init: None,
+            fit_pose: true,
             max_iterations: 60,
             fit_points: 50_000,
             min_coverage: 0.5,
@@ -137,6 +142,16 @@ pub fn inspect(
             "tolerance",
             format!("{} must be positive", params.tolerance),
         ));
+    }
+    if !params.fit_pose {
+        let pose = params.init.ok_or_else(|| {
+            Error::invalid(
+                "inspection",
+                "init",
+                "a known pose (fit_pose = false) needs the pose itself",
+            )
+        })?;
+        return Ok(known_pose(cloud, cad, params, pose, non_finite));
     }
     let step = (cloud.len() / params.fit_points.max(1)).max(1);
     let fit: Vec<[f64; 3]> = cloud.iter().step_by(step).copied().collect();
@@ -219,6 +234,51 @@ pub fn inspect(
         deviations,
         report,
     })
+}
+
+/// The inspection at a known pose: the deviations of every point where `pose` puts it, the
+/// coverage and the verdict; nothing is fitted (the distance tool's work, and its time).
+fn known_pose(
+    cloud: &[[f64; 3]],
+    cad: &SignedDistance,
+    params: &InspectParams,
+    pose: Pose,
+    non_finite: usize,
+) -> Inspection {
+    let points = to_cad(cloud, &pose);
+    let deviations = cad.deviations(&points);
+    let near = (20.0 * params.tolerance).max(10.0);
+    let on_surface: Vec<[f64; 3]> = points
+        .iter()
+        .zip(&deviations)
+        .step_by((points.len() / params.fit_points.max(1)).max(1))
+        .filter(|(_, d)| d.abs() <= near)
+        .map(|(p, _)| *p)
+        .collect();
+    let coverage = coverage::coverage(cad.mesh(), &on_surface, params.min_coverage);
+    let report = report::build(
+        &points,
+        &deviations,
+        &pose,
+        params,
+        report::Fit {
+            mode: "known pose",
+            iterations: 0,
+            trusted_fraction: 0.0,
+            conditioning: Conditioning::not_fitted(),
+            alignment: None,
+            measurements: Vec::new(),
+            stability: None,
+        },
+        coverage,
+        non_finite,
+    );
+    tracing::debug!(verdict = %report.verdict, rms = report.statistics.rms, "inspected at a known pose");
+    Inspection {
+        points,
+        deviations,
+        report,
+    }
 }
 
 /// The datum frame fitted from each coarse-alignment contender (a robust fit on everything first

@@ -60,7 +60,7 @@ pub struct DatumResidual {
 /// Registration summary.
 #[derive(Clone, Debug, Serialize)]
 pub struct Registration {
-    /// "datums" or "trusted-region".
+    /// "trusted-region", "datums", "datum-frame", or "known pose" (nothing fitted).
     pub mode: String,
     /// Fit iterations in total.
     pub iterations: usize,

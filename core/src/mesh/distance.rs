@@ -3,7 +3,7 @@
 //! pseudo-normals (Bærentzen & Aanæs), which stay correct when the nearest point is an edge or
 //! a vertex.
 
-use std::collections::HashMap;
+use crate::spatial::IntMap;
 
 use rayon::prelude::*;
 
@@ -24,7 +24,7 @@ pub struct SignedDistance {
     face_normals: Vec<Vec3>,
     vertex_normals: Vec<Vec3>,
     /// Summed face normals of each edge and how many triangles share it (1: open boundary).
-    edge_normals: HashMap<(u32, u32), (Vec3, u32)>,
+    edge_normals: IntMap<(u32, u32), (Vec3, u32)>,
     /// Vertices on an open boundary edge.
     boundary_vertex: Vec<bool>,
 }
@@ -51,7 +51,8 @@ impl SignedDistance {
         let n = mesh.triangles.len();
         let mut face_normals = Vec::with_capacity(n);
         let mut vertex_normals = vec![Vec3::zeros(); mesh.vertices.len()];
-        let mut edge_normals: HashMap<(u32, u32), (Vec3, u32)> = HashMap::with_capacity(n * 3 / 2);
+        let mut edge_normals: IntMap<(u32, u32), (Vec3, u32)> =
+            IntMap::with_capacity_and_hasher(n * 3 / 2, Default::default());
         for (t, tri) in mesh.triangles.iter().enumerate() {
             let c = mesh.corners(t);
             let nrm = (c[1] - c[0]).cross(&(c[2] - c[0]));

@@ -2,8 +2,6 @@
 //! clutter: spheres by one-point hypotheses (a point and its normal put the centre one radius
 //! inwards), flats by region growing on planar seeds, each kept only when its size matches.
 
-use std::collections::{HashMap, HashSet};
-
 use nalgebra::SymmetricEigen;
 use rayon::prelude::*;
 
@@ -11,37 +9,7 @@ use super::fit::{fit_plane, fit_sphere, PlaneFit, SphereFit};
 use crate::geometry::{Mat3, Vec3};
 use crate::spatial::KdTree;
 
-/// A multiplicative hash of small integer cell keys (SipHash, the default, spent a tenth of
-/// a verification hashing cell keys).
-#[derive(Clone, Copy, Default)]
-pub(crate) struct CellHasher(u64);
-
-impl std::hash::Hasher for CellHasher {
-    fn finish(&self) -> u64 {
-        // The table indexes by the low bits: fold the well-mixed high bits into them.
-        self.0 ^ (self.0 >> 32)
-    }
-    fn write(&mut self, bytes: &[u8]) {
-        // Integer arrays (`[i32; 3]` cell keys) arrive as their bytes: eight at a time.
-        for chunk in bytes.chunks(8) {
-            let mut word = [0u8; 8];
-            word[..chunk.len()].copy_from_slice(chunk);
-            self.write_u64(u64::from_le_bytes(word));
-        }
-    }
-    fn write_i32(&mut self, v: i32) {
-        self.write_u64(u64::from(v as u32));
-    }
-    fn write_i64(&mut self, v: i64) {
-        self.write_u64(v as u64);
-    }
-    fn write_u64(&mut self, v: u64) {
-        self.0 = (self.0.rotate_left(5) ^ v).wrapping_mul(0x517c_c1b7_2722_0a95);
-    }
-}
-
-type CellMap<K, V> = HashMap<K, V, std::hash::BuildHasherDefault<CellHasher>>;
-type CellSet<K> = HashSet<K, std::hash::BuildHasherDefault<CellHasher>>;
+use crate::spatial::{IntMap as CellMap, IntSet as CellSet};
 
 /// A uniform hash grid over a cloud, for the points within a distance of a place.
 pub(crate) struct Grid {

@@ -121,18 +121,22 @@ pub fn load_datums(path: &Path) -> Result<Vec<Datum>> {
     validate(&path.display().to_string(), f.datum)
 }
 
-/// Refuse datums that cannot belong to a part whose CAD spans `lo … hi`: a radius beyond the
-/// box's diagonal, or a centre farther than a diagonal outside it. Such a datum is a typing
-/// error, and its radius sizes work (the points it selects, the circle drawn for it).
+/// How many times its CAD's diagonal a datum's radius may be: a datum "covering everything"
+/// is often given a round radius well beyond the part.
+const MAX_RADIUS_DIAGONALS: f64 = 100.0;
+
+/// Refuse datums that cannot belong to a part whose CAD spans `lo … hi`: a radius beyond
+/// [`MAX_RADIUS_DIAGONALS`] of the box's diagonal, or a centre farther than a diagonal outside
+/// it. Such a datum is a typing error, and its radius sizes work (the circle drawn for it).
 pub fn check_against(ctx: &str, datums: &[Datum], (lo, hi): ([f64; 3], [f64; 3])) -> Result<()> {
     let diagonal = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
     for (i, d) in datums.iter().enumerate() {
-        if d.radius > diagonal {
+        if d.radius > MAX_RADIUS_DIAGONALS * diagonal {
             return Err(Error::invalid(
                 ctx,
                 format!("datum[{i}].radius"),
                 format!(
-                    "{} mm is larger than the part itself (its CAD's diagonal is {diagonal:.0} mm)",
+                    "{} mm is beyond {MAX_RADIUS_DIAGONALS} times the part's size (its CAD's diagonal is {diagonal:.0} mm)",
                     d.radius
                 ),
             ));
@@ -356,6 +360,7 @@ mod tests {
         };
         let part = ([-500.0, -400.0, -50.0], [500.0, 400.0, 50.0]);
         check_against("d.toml", &[datum(40.0, [100.0, 0.0, 0.0])], part).expect("a sane datum");
+        check_against("d.toml", &[datum(1e4, [0.0; 3])], part).expect("a datum over everything");
         for (d, field) in [
             (datum(1e9, [0.0; 3]), "datum[0].radius"),
             (datum(1e300, [0.0; 3]), "datum[0].radius"),

@@ -126,7 +126,7 @@ pub fn load_datums(path: &Path) -> Result<Vec<Datum>> {
 const MAX_RADIUS_DIAGONALS: f64 = 100.0;
 
 /// Refuse datums that cannot belong to a part whose CAD spans `lo … hi`: a radius beyond
-/// [`MAX_RADIUS_DIAGONALS`] of the box's diagonal, or a centre farther than a diagonal outside
+/// 100 times the box's diagonal, or a centre farther than a diagonal outside
 /// it. Such a datum is a typing error, and its radius sizes work (the circle drawn for it).
 pub fn check_against(ctx: &str, datums: &[Datum], (lo, hi): ([f64; 3], [f64; 3])) -> Result<()> {
     let diagonal = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();

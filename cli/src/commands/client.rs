@@ -92,3 +92,23 @@ pub async fn ask<Req: Serialize, Rep: DeserializeOwned>(
         }
     }
 }
+
+/// One item the daemon published or stored under `key` (the first good reply).
+pub async fn fetch(session: &zenoh::Session, key: &str) -> Result<Vec<u8>> {
+    let replies = session
+        .get(key)
+        .timeout(Duration::from_secs(30))
+        .await
+        .map_err(|e| {
+            anyhow!(
+                "asking {key}: {}",
+                ris_daemon::service::plain(&e.to_string())
+            )
+        })?;
+    while let Ok(reply) = replies.recv_async().await {
+        if let Ok(sample) = reply.result() {
+            return Ok(sample.payload().to_bytes().into_owned());
+        }
+    }
+    bail!("{key} was neither published nor stored by the daemon")
+}

@@ -292,11 +292,11 @@ async fn scan(args: &ScanArgs) -> Result<Arrived> {
             continue;
         }
         let key = ScanItem::Cloud(name.clone()).key(cell, &scan_id);
-        let bytes = fetch(&session, &key).await?;
+        let bytes = super::client::fetch(&session, &key).await?;
         clouds.insert(name.clone(), bytes);
     }
     if inspected && report.is_none() {
-        report = Some(fetch(&session, &ScanItem::Report.key(cell, &scan_id)).await?);
+        report = Some(super::client::fetch(&session, &ScanItem::Report.key(cell, &scan_id)).await?);
     }
     drop(sub);
     session
@@ -309,21 +309,6 @@ async fn scan(args: &ScanArgs) -> Result<Arrived> {
         report,
         done,
     })
-}
-
-/// One stored item of the daemon.
-async fn fetch(session: &zenoh::Session, key: &str) -> Result<Vec<u8>> {
-    let replies = session
-        .get(key)
-        .timeout(Duration::from_secs(30))
-        .await
-        .map_err(|e| anyhow!("asking {key}: {e}"))?;
-    while let Ok(reply) = replies.recv_async().await {
-        if let Ok(sample) = reply.result() {
-            return Ok(sample.payload().to_bytes().into_owned());
-        }
-    }
-    bail!("{key} was neither published nor stored by the daemon")
 }
 
 /// Write the received scan into `dir` all at once (nothing half-written on failure).

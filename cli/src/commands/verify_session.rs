@@ -293,8 +293,21 @@ fn finish(args: &SessionArgs, out: Option<&Path>) -> Result<Option<i32>> {
     println!("verification: {}", word(verdict));
     if let Some(out) = out {
         let cell = &args.daemon.cell;
-        let certificate = fetch(args, &VerificationItem::Certificate.key(cell, &s.id))?;
-        let page = fetch(args, &VerificationItem::Page.key(cell, &s.id))?;
+        let creds = credentials(args);
+        let (certificate, page) = runtime()?.block_on(async {
+            let session = super::client::open(&args.daemon.connect, creds.as_ref()).await?;
+            let got = async {
+                let c = VerificationItem::Certificate.key(cell, &s.id);
+                let p = VerificationItem::Page.key(cell, &s.id);
+                Ok::<_, anyhow::Error>((
+                    super::client::fetch(&session, &c).await?,
+                    super::client::fetch(&session, &p).await?,
+                ))
+            }
+            .await;
+            let _ = session.close().await;
+            got
+        })?;
         ris_core::io::write_dir_atomically(out, |dir| {
             ris_core::io::create_dir(dir)?;
             ris_core::io::write_atomic(&dir.join("certificate.json"), &certificate)?;
@@ -341,33 +354,6 @@ fn query<Req: Serialize, Rep: DeserializeOwned>(
         let reply = super::client::ask(&session, key, body).await;
         let _ = session.close().await;
         reply
-    })
-}
-
-/// A stored item's bytes.
-fn fetch(args: &SessionArgs, key: &str) -> Result<Vec<u8>> {
-    let creds = credentials(args);
-    runtime()?.block_on(async {
-        let session = super::client::open(&args.daemon.connect, creds.as_ref()).await?;
-        let replies = session
-            .get(key)
-            .timeout(Duration::from_secs(10))
-            .await
-            .map_err(|e| {
-                anyhow!(
-                    "asking {key}: {}",
-                    ris_daemon::service::plain(&e.to_string())
-                )
-            })?;
-        let got = match replies.recv_async().await {
-            Ok(r) => r
-                .result()
-                .map(|s| s.payload().to_bytes().into_owned())
-                .map_err(|_| anyhow!("risd refused {key}")),
-            Err(_) => Err(anyhow!("nothing stored at {key}")),
-        };
-        let _ = session.close().await;
-        got
     })
 }
 

@@ -187,17 +187,7 @@ pub fn inspect(
     };
     let points = to_cad(cloud, &pose);
     let deviations = cad.deviations(&points);
-    // Coverage counts the points that lie on the nominal surface (within the deformation a
-    // part may plausibly have), so a cloud registered next to the CAD measures nothing.
-    let near = (20.0 * params.tolerance).max(10.0);
-    let on_surface: Vec<[f64; 3]> = points
-        .iter()
-        .zip(&deviations)
-        .step_by((points.len() / params.fit_points.max(1)).max(1))
-        .filter(|(_, d)| d.abs() <= near)
-        .map(|(p, _)| *p)
-        .collect();
-    let coverage = coverage::coverage(cad.mesh(), &on_surface, params.min_coverage);
+    let (coverage, near) = surface_coverage(&points, &deviations, cad, params);
     // What the fit used: the datum regions when the part has datums, else the surface; a
     // datum frame states its own.
     let conditioning = match frame_conditioning {
@@ -236,6 +226,29 @@ pub fn inspect(
     })
 }
 
+/// How much of the CAD the points on its nominal surface cover, and the distance that counts
+/// as on it: within the deformation a part may plausibly have, so that a cloud registered next
+/// to the CAD measures nothing.
+fn surface_coverage(
+    points: &[[f64; 3]],
+    deviations: &[f64],
+    cad: &SignedDistance,
+    params: &InspectParams,
+) -> (coverage::Coverage, f64) {
+    let near = (20.0 * params.tolerance).max(10.0);
+    let on_surface: Vec<[f64; 3]> = points
+        .iter()
+        .zip(deviations)
+        .step_by((points.len() / params.fit_points.max(1)).max(1))
+        .filter(|(_, d)| d.abs() <= near)
+        .map(|(p, _)| *p)
+        .collect();
+    (
+        coverage::coverage(cad.mesh(), &on_surface, params.min_coverage),
+        near,
+    )
+}
+
 /// The inspection at a known pose: the deviations of every point where `pose` puts it, the
 /// coverage and the verdict; nothing is fitted (the distance tool's work, and its time).
 fn known_pose(
@@ -247,15 +260,7 @@ fn known_pose(
 ) -> Inspection {
     let points = to_cad(cloud, &pose);
     let deviations = cad.deviations(&points);
-    let near = (20.0 * params.tolerance).max(10.0);
-    let on_surface: Vec<[f64; 3]> = points
-        .iter()
-        .zip(&deviations)
-        .step_by((points.len() / params.fit_points.max(1)).max(1))
-        .filter(|(_, d)| d.abs() <= near)
-        .map(|(p, _)| *p)
-        .collect();
-    let coverage = coverage::coverage(cad.mesh(), &on_surface, params.min_coverage);
+    let (coverage, _) = surface_coverage(&points, &deviations, cad, params);
     let report = report::build(
         &points,
         &deviations,

@@ -329,30 +329,33 @@ pub(super) async fn handle_verify(
         .payload()
         .map(|p| p.to_bytes().into_owned())
         .unwrap_or_default();
-    let outcome = (|| -> Result<(serde_json::Value, Option<VerificationRecord>), String> {
-        let ledger = ledger.ok_or_else(|| {
-            format!(
+    // Finishing writes the certificates: blocking work, kept off the runtime's other tasks.
+    let outcome = tokio::task::block_in_place(
+        || -> Result<(serde_json::Value, Option<VerificationRecord>), String> {
+            let ledger = ledger.ok_or_else(|| {
+                format!(
                 "cell {cell:?} has no [verify] section (its artefacts file): it cannot be verified"
             )
-        })?;
-        let r = VerifyRequest::parse(&body)?;
-        let mut l = ledger
-            .lock()
-            .map_err(|_| "the verification ledger is unavailable".to_string())?;
-        fn json<T: serde::Serialize>(v: &T) -> serde_json::Value {
-            serde_json::to_value(v).unwrap_or_default()
-        }
-        Ok(match r.action {
-            VerifyAction::Status => (json(&l.health(verification::unix_now())), None),
-            VerifyAction::Start => (json(&l.start(r.kind)?), None),
-            VerifyAction::Abort => (json(&l.abort()?), None),
-            VerifyAction::History => (json(&l.history(None)), None),
-            VerifyAction::Finish => {
-                let record = l.finish()?;
-                (json(&verification::summary(&record)), Some(record))
+            })?;
+            let r = VerifyRequest::parse(&body)?;
+            let mut l = ledger
+                .lock()
+                .map_err(|_| "the verification ledger is unavailable".to_string())?;
+            fn json<T: serde::Serialize>(v: &T) -> serde_json::Value {
+                serde_json::to_value(v).unwrap_or_default()
             }
-        })
-    })();
+            Ok(match r.action {
+                VerifyAction::Status => (json(&l.health(verification::unix_now())), None),
+                VerifyAction::Start => (json(&l.start(r.kind)?), None),
+                VerifyAction::Abort => (json(&l.abort()?), None),
+                VerifyAction::History => (json(&l.history(None)), None),
+                VerifyAction::Finish => {
+                    let record = l.finish()?;
+                    (json(&verification::summary(&record)), Some(record))
+                }
+            })
+        },
+    );
     match outcome {
         Ok((reply, finished)) => {
             if let Some(record) = finished {
@@ -406,29 +409,7 @@ pub(super) async fn handle_verifications(q: &Query, cell: &str, ledger: &Mutex<L
             .collect(),
         Err(_) => return,
     };
-    let asked = q.key_expr().clone();
-    for (key, path) in items {
-        let Some(k) = zenoh::key_expr::KeyExpr::try_from(key.clone())
-            .ok()
-            .filter(|k| asked.intersects(k))
-        else {
-            continue;
-        };
-        // Only files of the store itself, never a link out of it.
-        if !std::fs::symlink_metadata(&path).is_ok_and(|m| m.is_file()) {
-            continue;
-        }
-        match tokio::fs::read(&path).await {
-            Ok(bytes) => {
-                if let Err(err) = q.reply(k, bytes).await {
-                    tracing::warn!(%key, error = %err, "stored reply failed");
-                }
-            }
-            Err(err) => {
-                tracing::warn!(path = %path.display(), error = %err, "stored file unreadable")
-            }
-        }
-    }
+    reply_stored(q, items).await;
 }
 
 /// Answer `ris/<cell>/scans/**` from the finished scans on disk: `<id>/state`, `<id>/report`,
@@ -450,12 +431,27 @@ pub(super) async fn handle_store(q: &Query, cell: &str, data_dir: &Path) {
             let _ = q.reply(k, r#"{"state":"done"}"#).await;
         }
     }
+    reply_stored(q, items).await;
+}
+
+/// Reply to `q` with each stored file whose key the query matches; only plain files of the
+/// store itself, never a link out of it. Replies follow the query's congestion control.
+async fn reply_stored(q: &Query, items: Vec<(String, std::path::PathBuf)>) {
+    let asked = q.key_expr().clone();
     for (key, path) in items {
-        let Some(k) = matching(&key) else {
+        let Some(k) = zenoh::key_expr::KeyExpr::try_from(key.clone())
+            .ok()
+            .filter(|k| asked.intersects(k))
+        else {
             continue;
         };
+        if !tokio::fs::symlink_metadata(&path)
+            .await
+            .is_ok_and(|m| m.is_file())
+        {
+            continue;
+        }
         match tokio::fs::read(&path).await {
-            // Replies follow the query's congestion control.
             Ok(bytes) => {
                 if let Err(err) = q.reply(k, bytes).await {
                     tracing::warn!(%key, error = %err, "stored reply failed");

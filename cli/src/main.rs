@@ -357,6 +357,13 @@ enum Command {
     /// into OUT/SCAN_ID/ (exit status 3 when the inspected part fails, 4 when it was not
     /// measured)
     Scan(commands::scan::ScanCommand),
+    /// The station: a web console over the Zenoh fabric of one cell or many (live states,
+    /// results with a 3D deviation view, the history in SQLite, trends with control limits and
+    /// run rules, alarms, CSV and AQDEF export)
+    Console(commands::console::ConsoleCommand),
+    /// A running cell's stored scans: list them, get one's summary and report, fetch every
+    /// stored item of one into OUT/ID/
+    Scans(commands::scans::ScansCommand),
     /// The omnidirectional sensor (SPEC §13). With IMAGE: decode the ring pattern in the
     /// camera's image into the 360° cloud (sensor frame, mm, with `ring` and `azimuth` per
     /// point) and optionally the panorama with distance colours (azimuth 0…360° left to right,
@@ -818,6 +825,8 @@ fn main() -> Result<()> {
                 std::process::exit(code);
             }
         }
+        Command::Console(c) => commands::console::command(&c)?,
+        Command::Scans(c) => commands::scans::command(&c)?,
         Command::Verify(c) => {
             if let Some(code) = commands::verify::command(&c)? {
                 std::process::exit(code);

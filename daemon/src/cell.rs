@@ -20,6 +20,10 @@ pub struct ScanJob {
     pub part: Option<usize>,
     /// The request's free text.
     pub tag: Option<String>,
+    /// The part's serial number.
+    pub serial: Option<String>,
+    /// Who started the scan.
+    pub operator: Option<String>,
     /// How the pairs acquire.
     pub mode: ScanMode,
     /// What a `verify` scan measures: the artefact and its position.
@@ -75,12 +79,20 @@ impl Cell {
         state: &(dyn Fn(&ScanState) + Sync),
     ) -> Result<(ScanReport, PathBuf)> {
         self.reconnect();
+        // A mock cell's wearing part deepens its dent with every scan.
+        for p in &self.pairs {
+            if let Some(f) = &p.faults {
+                f.next_scan();
+            }
+        }
         let options = ScanOptions {
             only: job.sensors.as_deref(),
             keep_captures: self.keep_captures,
             e57: self.e57,
             part: job.part.and_then(|i| self.parts.get(i)),
             tag: job.tag.as_deref(),
+            serial: job.serial.as_deref(),
+            operator: job.operator.as_deref(),
             mode: job.mode,
             notes: &job.notes,
         };

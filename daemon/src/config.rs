@@ -208,6 +208,22 @@ pub struct PartSection {
     /// the part is `not_measured`.
     #[serde(default = "half")]
     pub min_coverage: f64,
+    /// `fit` (default): register the cloud to the CAD before measuring deviations; `known`:
+    /// the part sits where the cell's calibration puts it (a fixture), nothing is fitted and
+    /// every deviation is measured where it lies.
+    #[serde(default)]
+    pub pose: PartPose,
+}
+
+/// How a part's pose in the cell is found.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PartPose {
+    /// Registered to the CAD model (from the nominal pose), each scan.
+    #[default]
+    Fit,
+    /// Known: the cell frame is the part's (a fixtured part).
+    Known,
 }
 
 /// `[ros2]`: also publish every cloud as a ROS 2 `sensor_msgs/msg/PointCloud2` the way
@@ -507,6 +523,8 @@ pub struct PartConfig {
     pub tolerance: f64,
     /// Minimum measured fraction of the CAD surface.
     pub min_coverage: f64,
+    /// Whether the pose is fitted or known.
+    pub pose: PartPose,
 }
 
 /// A validated cell configuration, paths resolved against the file's directory.
@@ -913,6 +931,7 @@ impl CellConfig {
                 datums: p.datums.as_deref().map(resolve),
                 tolerance: p.tolerance,
                 min_coverage: p.min_coverage,
+                pose: p.pose,
             });
         }
         let mut zenoh = file.zenoh.clone();

@@ -3,6 +3,7 @@
 //! command-line tool (`cli/`) is a client of this crate's [`protocol`].
 
 pub mod cell;
+pub mod client;
 pub mod config;
 pub mod logging;
 pub mod notify;

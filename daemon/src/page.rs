@@ -48,8 +48,8 @@ pub fn write_report_page(dir: &Path) -> Result<PathBuf> {
     Ok(path)
 }
 
-/// HTML-escaped text.
-fn esc(s: &str) -> String {
+/// HTML-escaped text (`&`, `<`, `>`, `"`, `'`): safe in element content and quoted attributes.
+pub fn esc(s: &str) -> String {
     let mut o = String::with_capacity(s.len());
     for c in s.chars() {
         match c {

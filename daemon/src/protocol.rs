@@ -37,6 +37,12 @@ pub fn claim_key(cell: &str, claim: &str) -> String {
     format!("ris/{cell}/claim/{claim}")
 }
 
+/// `ris/<cell>/alarms`: what a station (`ris console`) raises when a run rule fires on a
+/// part's trend (JSON, one alarm per publication).
+pub fn alarms_key(cell: &str) -> String {
+    format!("ris/{cell}/alarms")
+}
+
 /// `ris/<cell>/**`: everything of a cell (access control).
 pub fn cell_key(cell: &str) -> String {
     format!("ris/{cell}/**")
@@ -57,8 +63,11 @@ pub fn scan_states_key(cell: &str) -> String {
 pub enum ScanItem {
     /// `state`: the scan's [`ScanState`], published as it changes.
     State,
-    /// `report`: the inspection report (JSON).
+    /// `report`: the inspection report (JSON; a scan without inspection: its summary).
     Report,
+    /// `summary`: the scan's summary (`scan.json`: tag, serial, operator, mode, per-sensor
+    /// timings, the inspection's verdict).
+    Summary,
     /// `page`: the one-page HTML report.
     Page,
     /// `map`: the labelled deviation map (PNG).
@@ -75,6 +84,7 @@ impl ScanItem {
         let item = match self {
             ScanItem::State => "state",
             ScanItem::Report => "report",
+            ScanItem::Summary => "summary",
             ScanItem::Page => "page",
             ScanItem::Map => "map",
             ScanItem::Deviation => "deviation",
@@ -93,6 +103,7 @@ impl ScanItem {
         let item = match &parts[4..] {
             ["state"] => ScanItem::State,
             ["report"] => ScanItem::Report,
+            ["summary"] => ScanItem::Summary,
             ["page"] => ScanItem::Page,
             ["map"] => ScanItem::Map,
             ["deviation"] => ScanItem::Deviation,
@@ -143,6 +154,14 @@ pub struct ScanRequest {
     /// Free text stored with the scan (`scan.json`), at most [`MAX_TAG`] characters.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tag: Option<String>,
+    /// The scanned part's serial number, stored with the scan; at most [`MAX_TAG`]
+    /// characters.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub serial: Option<String>,
+    /// Who started the scan (a station's signed-in user), stored with the scan; at most
+    /// [`MAX_TAG`] characters.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub operator: Option<String>,
     /// The artefact a `verify` scan measures.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub artefact: Option<Artefact>,
@@ -190,10 +209,14 @@ impl ScanRequest {
             let cut: String = text.chars().take(200).collect();
             format!("malformed request: {cut}")
         })?;
-        if let Some(tag) = &req.tag {
-            let n = tag.chars().count();
+        for (field, text) in [
+            ("tag", &req.tag),
+            ("serial", &req.serial),
+            ("operator", &req.operator),
+        ] {
+            let n = text.as_deref().map_or(0, |t| t.chars().count());
             if n > MAX_TAG {
-                return Err(format!("`tag` has {n} characters; at most {MAX_TAG}"));
+                return Err(format!("`{field}` has {n} characters; at most {MAX_TAG}"));
             }
         }
         let verify = req.mode == Some(ScanMode::Verify);
@@ -822,6 +845,7 @@ mod tests {
         for item in [
             ScanItem::State,
             ScanItem::Report,
+            ScanItem::Summary,
             ScanItem::Page,
             ScanItem::Map,
             ScanItem::Deviation,

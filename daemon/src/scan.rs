@@ -92,6 +92,12 @@ pub struct ScanReport {
     /// The request's tag.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub tag: Option<String>,
+    /// The part's serial number.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub serial: Option<String>,
+    /// Who started the scan.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub operator: Option<String>,
     /// Cell.
     pub cell: String,
     /// How the pairs acquired.
@@ -144,6 +150,7 @@ pub struct Part {
     datums: Vec<Datum>,
     tolerance: f64,
     min_coverage: f64,
+    fit_pose: bool,
 }
 
 impl Part {
@@ -161,6 +168,7 @@ impl Part {
             datums,
             tolerance: config.tolerance,
             min_coverage: config.min_coverage,
+            fit_pose: config.pose == crate::config::PartPose::Fit,
         })
     }
 }
@@ -178,6 +186,10 @@ pub struct ScanOptions<'a> {
     pub part: Option<&'a Part>,
     /// Free text of the request, stored in `scan.json`.
     pub tag: Option<&'a str>,
+    /// The part's serial number, stored in `scan.json`.
+    pub serial: Option<&'a str>,
+    /// Who started the scan, stored in `scan.json`.
+    pub operator: Option<&'a str>,
     /// How the pairs acquire.
     pub mode: ScanMode,
     /// What the inspection report must carry besides the scan's own warnings.
@@ -506,6 +518,8 @@ fn scan_into(
     let report = ScanReport {
         scan_id: scan_id.to_string(),
         tag: options.tag.map(str::to_string),
+        serial: options.serial.map(str::to_string),
+        operator: options.operator.map(str::to_string),
         cell: cell.to_string(),
         mode: options.mode,
         sensors: timings
@@ -695,6 +709,7 @@ fn inspect_part(
             datums: part.datums.clone(),
             init: Some(ris_core::register::Pose::identity()),
             min_coverage: part.min_coverage,
+            fit_pose: part.fit_pose,
             ..InspectParams::default()
         },
     )

@@ -110,7 +110,7 @@ fn sweep(data_dir: &Path, keep: u32, max_age_days: u32, partials: bool) -> Resul
 }
 
 /// The stored results of finished scans: (key, file) for `<id>/report` (the inspection report,
-/// else the scan's summary), `<id>/cloud/<sensor>`, `<id>/deviation` (the deviation cloud),
+/// else the scan's summary), `<id>/summary` (`scan.json`), `<id>/cloud/<sensor>`, `<id>/deviation` (the deviation cloud),
 /// `<id>/map` (the labelled deviation map, PNG) and `<id>/page` (`report.html`), and the ids. Blocking directory walk: run off the async runtime.
 pub fn stored_items(cell: &str, data_dir: &Path) -> (Vec<String>, Vec<(String, PathBuf)>) {
     let mut ids = Vec::new();
@@ -134,6 +134,7 @@ pub fn stored_items(cell: &str, data_dir: &Path) -> (Vec<String>, Vec<(String, P
             .filter(|p| plain_file(p))
             .unwrap_or_else(|| dir.join("scan.json"));
         items.push((ScanItem::Report.key(cell, &id), report));
+        items.push((ScanItem::Summary.key(cell, &id), dir.join("scan.json")));
         if let Ok(files) = std::fs::read_dir(&dir) {
             for f in files.flatten() {
                 if !f.file_type().is_ok_and(|t| t.is_file()) {

@@ -43,6 +43,7 @@ fn table_part(dir: &Path) -> ris_daemon::config::PartConfig {
         datums: None,
         tolerance: 0.5,
         min_coverage: 0.0,
+        pose: ris_daemon::config::PartPose::Fit,
     }
 }
 

@@ -1,14 +1,9 @@
-//! The Zenoh client side shared by `ris scan` and `ris stream`: a session to a running risd
-//! (with a cell's credentials) and a query answered by one JSON reply or an error reason.
+//! How the `ris` client commands reach a running risd: the command-line arguments, and the
+//! client calls of [`ris_daemon::client`] they use.
 
 use std::path::PathBuf;
-use std::time::Duration;
 
-use anyhow::{anyhow, bail, Context, Result};
-use serde::de::DeserializeOwned;
-use serde::Serialize;
-
-use ris_daemon::protocol::ErrorReply;
+pub use ris_daemon::client::{ask, fetch, open, replies};
 
 /// How a client reaches a running risd.
 #[derive(Clone, Debug, clap::Args)]
@@ -25,90 +20,4 @@ pub struct DaemonArgs {
     /// File whose first line is the user's password.
     #[arg(long, requires = "user")]
     pub password_file: Option<PathBuf>,
-}
-
-/// A client session to `connect`, logged in as the user of `credentials` (user, file whose
-/// first line is the password) when the cell has `[zenoh.access]`.
-pub async fn open(
-    connect: &[String],
-    credentials: Option<&(String, PathBuf)>,
-) -> Result<zenoh::Session> {
-    let password = match credentials {
-        Some((user, file)) => {
-            let text = std::fs::read_to_string(file)
-                .with_context(|| format!("--password-file: reading {}", file.display()))?;
-            Some((
-                user.clone(),
-                text.lines().next().unwrap_or_default().to_string(),
-            ))
-        }
-        None => None,
-    };
-    if connect.is_empty() {
-        bail!("--connect: give the daemon's endpoint, e.g. tcp/127.0.0.1:7447");
-    }
-    ris_daemon::config::check_endpoints("command line", "--connect", connect)?;
-    let config = ris_daemon::service::client_config(
-        connect,
-        password.as_ref().map(|(u, p)| (u.as_str(), p.as_str())),
-    )?;
-    zenoh::open(config).await.map_err(|_| {
-        anyhow!(
-            "no risd answers at {}: start it there (risd, or systemctl start risd), or give its endpoint with --connect",
-            connect.join(", ")
-        )
-    })
-}
-
-/// Ask `key` with `body` as JSON: the reply, or the daemon's reason as the error.
-pub async fn ask<Req: Serialize, Rep: DeserializeOwned>(
-    session: &zenoh::Session,
-    key: &str,
-    body: &Req,
-) -> Result<Rep> {
-    let replies = session
-        .get(key)
-        .payload(serde_json::to_string(body)?)
-        .timeout(Duration::from_secs(10))
-        .await
-        .map_err(|e| {
-            anyhow!(
-                "asking {key}: {}",
-                ris_daemon::service::plain(&e.to_string())
-            )
-        })?;
-    let reply = replies.recv_async().await.map_err(|_| {
-        anyhow!("no reply from {key}: no risd serves this cell there (check --cell and --connect)")
-    })?;
-    match reply.result() {
-        Ok(sample) => serde_json::from_slice(&sample.payload().to_bytes())
-            .with_context(|| format!("the daemon's reply on {key} is not what this ris expects (a risd of another version?)")),
-        Err(err) => {
-            let text = String::from_utf8_lossy(&err.payload().to_bytes()).into_owned();
-            let reason = serde_json::from_str::<ErrorReply>(&text)
-                .map(|r| r.error)
-                .unwrap_or(text);
-            bail!("risd refused: {reason}")
-        }
-    }
-}
-
-/// One item the daemon published or stored under `key` (the first good reply).
-pub async fn fetch(session: &zenoh::Session, key: &str) -> Result<Vec<u8>> {
-    let replies = session
-        .get(key)
-        .timeout(Duration::from_secs(30))
-        .await
-        .map_err(|e| {
-            anyhow!(
-                "asking {key}: {}",
-                ris_daemon::service::plain(&e.to_string())
-            )
-        })?;
-    while let Ok(reply) = replies.recv_async().await {
-        if let Ok(sample) = reply.result() {
-            return Ok(sample.payload().to_bytes().into_owned());
-        }
-    }
-    bail!("{key} was neither published nor stored by the daemon")
 }

@@ -3,6 +3,7 @@
 pub mod calibrate;
 pub mod camera;
 pub mod client;
+pub mod console;
 pub mod convert;
 pub mod decode;
 pub mod demo;
@@ -16,6 +17,7 @@ pub mod project;
 pub mod reconstruct;
 pub mod register;
 pub mod scan;
+pub mod scans;
 pub mod simulate;
 pub mod single_shot;
 pub mod stream;

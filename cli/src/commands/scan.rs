@@ -28,6 +28,8 @@ pub struct ScanArgs {
     pub part: Option<String>,
     /// Free text stored with the scan.
     pub tag: Option<String>,
+    /// The part's serial number, stored with the scan.
+    pub serial: Option<String>,
     /// What a `verify` scan measures: the artefact and its position.
     pub verify: Option<(Artefact, String)>,
     /// Output directory; the scan lands in `<out>/<scan id>/`.
@@ -72,6 +74,9 @@ pub struct ScanCommand {
     /// Free text stored with the scan.
     #[arg(long)]
     pub tag: Option<String>,
+    /// The part's serial number, stored with the scan (the station's history searches it).
+    #[arg(long)]
+    pub serial: Option<String>,
     /// Give up when the scan has not finished after this many seconds.
     #[arg(long, default_value_t = 300)]
     pub timeout_s: u64,
@@ -91,6 +96,7 @@ pub fn command(c: &ScanCommand) -> Result<Option<i32>> {
         inspect: c.no_inspect.then_some(false),
         part: c.part.clone(),
         tag: c.tag.clone(),
+        serial: c.serial.clone(),
         verify: None,
         out: c.out.clone(),
         timeout: Duration::from_secs(c.timeout_s),
@@ -122,6 +128,8 @@ fn request(args: &ScanArgs) -> ScanRequest {
         inspect: args.inspect,
         part: args.part.clone(),
         tag: args.tag.clone(),
+        serial: args.serial.clone(),
+        operator: None,
         artefact: args.verify.as_ref().map(|v| v.0),
         position: args.verify.as_ref().map(|v| v.1.clone()),
     }
@@ -151,7 +159,13 @@ pub fn run(args: &ScanArgs) -> Result<Received> {
     let got = runtime.block_on(scan(args))?;
     // Files are written off the async runtime, once the session is closed.
     let dir = args.out.join(&got.scan_id);
-    write(&dir, &got.clouds, got.report.as_deref(), &got.done)?;
+    write(
+        &dir,
+        &got.clouds,
+        got.report.as_deref(),
+        &got.pages,
+        &got.done,
+    )?;
     let verdict = got.done["inspection"]["verdict"]
         .as_str()
         .map(str::to_string);
@@ -168,6 +182,8 @@ struct Arrived {
     scan_id: String,
     clouds: BTreeMap<String, Vec<u8>>,
     report: Option<Vec<u8>>,
+    /// The inspection's labelled map and one-page report (`deviation.png`, `report.html`).
+    pages: Vec<(&'static str, Vec<u8>)>,
     done: Value,
 }
 
@@ -298,6 +314,18 @@ async fn scan(args: &ScanArgs) -> Result<Arrived> {
     if inspected && report.is_none() {
         report = Some(super::client::fetch(&session, &ScanItem::Report.key(cell, &scan_id)).await?);
     }
+    let mut pages = Vec::new();
+    if inspected {
+        for (item, name) in [
+            (ScanItem::Map, "deviation.png"),
+            (ScanItem::Page, "report.html"),
+        ] {
+            pages.push((
+                name,
+                super::client::fetch(&session, &item.key(cell, &scan_id)).await?,
+            ));
+        }
+    }
     drop(sub);
     session
         .close()
@@ -307,6 +335,7 @@ async fn scan(args: &ScanArgs) -> Result<Arrived> {
         scan_id,
         clouds,
         report,
+        pages,
         done,
     })
 }
@@ -316,12 +345,16 @@ fn write(
     dir: &Path,
     clouds: &BTreeMap<String, Vec<u8>>,
     report: Option<&[u8]>,
+    pages: &[(&str, Vec<u8>)],
     done: &Value,
 ) -> Result<()> {
     ris_core::io::write_dir_atomically(dir, |tmp| {
         ris_core::io::create_dir(tmp)?;
         for (name, bytes) in clouds {
             ris_core::io::write_atomic(&tmp.join(format!("{name}.ply")), bytes)?;
+        }
+        for (name, bytes) in pages {
+            ris_core::io::write_atomic(&tmp.join(name), bytes)?;
         }
         if let Some(r) = report {
             ris_core::io::write_atomic(&tmp.join("report.json"), r)?;
@@ -385,6 +418,7 @@ mod tests {
             inspect: None,
             part: None,
             tag: None,
+            serial: None,
             verify: None,
             out: PathBuf::from("out"),
             timeout: Duration::from_secs(1),

@@ -255,6 +255,7 @@ fn measure(
         inspect: None,
         part: None,
         tag: None,
+        serial: None,
         verify: Some((artefact, position.to_string())),
         out: dir,
         timeout: Duration::from_secs(args.timeout_s),

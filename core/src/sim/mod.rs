@@ -15,8 +15,8 @@ mod texture;
 pub use light::{BlurredMask, Light};
 pub use render::{RenderCache, Truth};
 pub use scene::{
-    CalibrationSection, Material, MaterialSection, ObjectSection, RenderSection, Scene, SceneFile,
-    SimCamera, SimProjector,
+    CalibrationSection, Material, MaterialSection, ObjectSection, PanelWear, RenderSection, Scene,
+    SceneFile, SimCamera, SimProjector, WearSection,
 };
 pub use session::{simulate_session, SessionOutput};
 pub use shapes::{Object, Shape};

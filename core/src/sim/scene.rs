@@ -145,6 +145,91 @@ pub struct ObjectSection {
     /// Albedo of the painted markers (default 0.85).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub marker_albedo: Option<f64>,
+    /// A dent worn into a panel that deepens scan by scan (a wearing press tool): the mock
+    /// cell's planted drift for trends and run rules.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wear: Option<WearSection>,
+}
+
+/// `wear = { center = [x, y], radius = R, depth = d0, growth = g, after = a }` of a panel: a
+/// smooth dent `(d0 + g·max(0, n − a)) (1 − (ρ/R)²)²` deep (mm, into the panel, along its −z)
+/// at `center` (the panel's own x, y, mm) in the n-th scan of the cell.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WearSection {
+    /// Centre in the panel's own frame, mm.
+    pub center: [f64; 2],
+    /// Radius, mm.
+    pub radius: f64,
+    /// Depth before the first scan, mm.
+    #[serde(default)]
+    pub depth: f64,
+    /// Depth added by each scan, mm.
+    #[serde(default)]
+    pub growth: f64,
+    /// Scans before the dent starts to deepen.
+    #[serde(default)]
+    pub after: u64,
+}
+
+/// A panel's shape parameters, kept to rebuild it with its dent at another depth.
+#[derive(Clone, Debug)]
+pub struct PanelWear {
+    size: [f64; 2],
+    curvature: [f64; 2],
+    rotation: Mat3,
+    scale: f64,
+    position: Vec3,
+    wear: WearSection,
+}
+
+impl PanelWear {
+    /// The panel's mesh with the dent as deep as after `scans` scans.
+    pub fn mesh(&self, scans: u64) -> TriangleMesh {
+        let depth =
+            self.wear.depth + self.wear.growth * scans.saturating_sub(self.wear.after) as f64;
+        panel_mesh(
+            self.size,
+            self.curvature,
+            Some((self.wear, depth)),
+            &self.rotation,
+            self.scale,
+            &self.position,
+        )
+    }
+}
+
+/// A doubly curved panel `size` (x, y) with `curvature` (z = −(cx x² + cy y²) / 2), triangulated
+/// on a 4 mm grid, with an optional dent (and its depth), posed by `r`, `scale`, `position`.
+fn panel_mesh(
+    size: [f64; 2],
+    [cx, cy]: [f64; 2],
+    dent: Option<(WearSection, f64)>,
+    r: &Mat3,
+    scale: f64,
+    position: &Vec3,
+) -> TriangleMesh {
+    let (hx, hy) = (size[0] / 2.0, size[1] / 2.0);
+    let cells = |len: f64| ((len / 4.0).ceil() as usize).clamp(1, 2000);
+    let mut mesh = TriangleMesh::height_field(
+        cells(size[0]),
+        cells(size[1]),
+        (-hx, hx),
+        (-hy, hy),
+        |x, y| {
+            let mut z = -(cx * x * x + cy * y * y) / 2.0;
+            if let Some((w, depth)) = dent {
+                let q =
+                    ((x - w.center[0]).powi(2) + (y - w.center[1]).powi(2)) / (w.radius * w.radius);
+                if q < 1.0 {
+                    z -= depth * (1.0 - q).powi(2);
+                }
+            }
+            z
+        },
+    );
+    mesh.transform(r, scale, position);
+    mesh
 }
 
 /// `[render]`: simulator settings (optional).
@@ -459,6 +544,10 @@ impl Scene {
                     Some(MarkerPaint::new(&centers, gauge.radius * scale, albedo))
                 }
             };
+            let mut wear = None;
+            if o.wear.is_some() && o.shape != "panel" {
+                return Err(Error::invalid(ctx, f("wear"), "only a panel wears"));
+            }
             let shape = match o.shape.as_str() {
                 "plane" => Shape::Plane,
                 "box" => {
@@ -510,20 +599,40 @@ impl Scene {
                     if size[0] <= 0.0 || size[1] <= 0.0 {
                         return Err(Error::invalid(ctx, f("size"), "x and y must be positive"));
                     }
-                    let [cx, cy] = o.curvature.unwrap_or([0.0, 0.0]);
-                    if !(cx.is_finite() && cy.is_finite()) {
+                    let curvature = o.curvature.unwrap_or([0.0, 0.0]);
+                    if !(curvature[0].is_finite() && curvature[1].is_finite()) {
                         return Err(Error::invalid(ctx, f("curvature"), "must be finite"));
                     }
-                    let (hx, hy) = (size[0] / 2.0, size[1] / 2.0);
-                    let cells = |len: f64| ((len / 4.0).ceil() as usize).clamp(1, 2000);
-                    let mut mesh = TriangleMesh::height_field(
-                        cells(size[0]),
-                        cells(size[1]),
-                        (-hx, hx),
-                        (-hy, hy),
-                        |x, y| -(cx * x * x + cy * y * y) / 2.0,
-                    );
-                    mesh.transform(&r, scale, &position);
+                    if let Some(w) = &o.wear {
+                        let ok = w.center.iter().all(|c| c.is_finite())
+                            && w.radius.is_finite()
+                            && w.radius >= 8.0
+                            && w.radius <= size[0].max(size[1])
+                            && w.depth.is_finite()
+                            && w.growth.is_finite()
+                            && w.depth.abs() <= 100.0
+                            && w.growth.abs() <= 10.0;
+                        if !ok {
+                            return Err(Error::invalid(
+                                ctx,
+                                f("wear"),
+                                "center finite, radius within 8 mm … the panel's size, |depth| ≤ 100 mm, |growth| ≤ 10 mm per scan",
+                            ));
+                        }
+                    }
+                    let size = [size[0], size[1]];
+                    wear = o.wear.map(|w| PanelWear {
+                        size,
+                        curvature,
+                        rotation: r,
+                        scale,
+                        position,
+                        wear: w,
+                    });
+                    let mesh = match &wear {
+                        Some(w) => w.mesh(0),
+                        None => panel_mesh(size, curvature, None, &r, scale, &position),
+                    };
                     Shape::Mesh(Box::new(Bvh::new(mesh)))
                 }
                 other => {
@@ -558,6 +667,7 @@ impl Scene {
             };
             let mut object = Object::still(shape, material, markers);
             object.velocity = velocity;
+            object.wear = wear;
             objects.push(object);
         }
         if objects.is_empty() && file.calibration.is_none() {
@@ -640,6 +750,22 @@ impl Scene {
         s
     }
 
+    /// The scene as it is in the cell's `scans`-th scan: every wearing panel's dent that deep.
+    pub fn worn(&self, scans: u64) -> Scene {
+        let mut s = self.clone();
+        for o in &mut s.objects {
+            if let Some(w) = &o.wear {
+                o.shape = Shape::Mesh(Box::new(Bvh::new(w.mesh(scans))));
+            }
+        }
+        s
+    }
+
+    /// Whether any object wears scan by scan.
+    pub fn wears(&self) -> bool {
+        self.objects.iter().any(|o| o.wear.is_some())
+    }
+
     /// Whether any object moves.
     pub fn moving(&self) -> bool {
         self.objects.iter().any(|o| o.velocity.norm() > 0.0)
@@ -688,5 +814,56 @@ mod tests {
                 "{e}"
             );
         }
+    }
+
+    #[test]
+    fn a_wearing_panel_deepens_its_dent_scan_by_scan_and_bad_wear_is_refused() {
+        let scene = include_str!("../../../config/wear-cell/s1.toml");
+        let load = |text: &str| {
+            let file: SceneFile = toml::from_str(text).expect("toml");
+            Scene::from_file(file, Path::new("."), "s1.toml")
+        };
+        let s = load(scene).expect("the wear cell's scene");
+        assert!(s.wears() && !s.moving());
+        // Straight down onto the dent's centre (60, -40) and onto an untouched spot.
+        let height = |sc: &Scene, x: f64, y: f64| {
+            let (t, _, _) = sc
+                .intersect(
+                    &Vec3::new(x, y, 100.0),
+                    &Vec3::new(0.0, 0.0, -1.0),
+                    0.0,
+                    1e3,
+                )
+                .expect("hit");
+            100.0 - t
+        };
+        for (scans, depth) in [(0, 0.0), (8, 0.0), (9, 0.05), (20, 0.6)] {
+            let w = s.worn(scans);
+            // The centre lies between the 4 mm grid's vertices: within 1 % of the depth.
+            let h = height(&w, 60.0, -40.0);
+            assert!(
+                (h - (3.0 - depth)).abs() <= 0.01 * depth + 1e-9,
+                "scan {scans}: {h}"
+            );
+            assert!(
+                (height(&w, -200.0, 100.0) - 3.0).abs() < 1e-9,
+                "scan {scans}"
+            );
+        }
+        for (bad, field) in [
+            ("radius = 40.0", "radius = 1e9"),
+            ("growth = 0.05", "growth = 1e6"),
+        ] {
+            let e = load(&scene.replace(bad, field))
+                .expect_err(field)
+                .to_string();
+            assert!(e.contains("wear"), "{e}");
+        }
+        let plane = scene.replace(
+            "shape = \"panel\"\nmaterial = \"plate\"",
+            "shape = \"box\"\nmaterial = \"plate\"\ncenter = [0.0, 0.0, 0.0]",
+        );
+        let e = load(&plane).expect_err("only a panel wears").to_string();
+        assert!(e.contains("only a panel wears"), "{e}");
     }
 }

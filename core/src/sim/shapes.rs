@@ -18,6 +18,8 @@ pub struct Object {
     /// Displacement from the pose the scene file gives, at the time the scene is rendered
     /// ([`super::Scene::at`]).
     pub offset: Vec3,
+    /// A panel that wears scan by scan ([`super::Scene::worn`]).
+    pub wear: Option<super::PanelWear>,
 }
 
 impl Object {
@@ -29,6 +31,7 @@ impl Object {
             markers,
             velocity: Vec3::zeros(),
             offset: Vec3::zeros(),
+            wear: None,
         }
     }
 }

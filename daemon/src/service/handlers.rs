@@ -146,6 +146,8 @@ pub(super) async fn handle_scan(
                     sensors: r.sensors.clone(),
                     part,
                     tag: r.tag.clone(),
+                    serial: r.serial.clone(),
+                    operator: r.operator.clone(),
                     mode: r.mode.unwrap_or_default(),
                     verify: r.artefact.zip(r.position.clone()),
                     notes: Vec::new(),

@@ -55,4 +55,10 @@ impl FaultInjector {
     pub fn set_reconnectable(&self, yes: bool) {
         self.shared.lock().reconnectable = yes;
     }
+
+    /// A new scan of the cell begins: a wearing scene (`wear` of a panel) is rendered with the
+    /// dent one scan deeper from now on.
+    pub fn next_scan(&self) {
+        self.shared.lock().scans += 1;
+    }
 }

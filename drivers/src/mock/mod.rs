@@ -51,6 +51,8 @@ struct State {
     connected: bool,
     faults: Vec<(u64, Fault)>,
     reconnectable: bool,
+    /// Scans of the cell begun (a wearing scene's dent deepens with each).
+    scans: u64,
 }
 
 struct Shared {
@@ -61,12 +63,27 @@ struct Shared {
     seed: u64,
     /// When the pair was opened: the clock of a moving scene.
     opened: std::time::Instant,
+    /// A wearing scene as it is in the current scan (built once per scan).
+    worn: Mutex<Option<(u64, Arc<Simulator>)>>,
 }
 
 impl Shared {
     fn lock(&self) -> MutexGuard<'_, State> {
         // A panic while holding the lock leaves plain data behind; keep serving it.
         self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// `sim`'s scene worn as in scan `scans`.
+    fn worn(&self, sim: &Simulator, scans: u64) -> Arc<Simulator> {
+        let mut w = self.worn.lock().unwrap_or_else(|e| e.into_inner());
+        match &*w {
+            Some((n, s)) if *n == scans => s.clone(),
+            _ => {
+                let s = Arc::new(Simulator::new(sim.scene.worn(scans)));
+                *w = Some((scans, s.clone()));
+                s
+            }
+        }
     }
 }
 
@@ -147,12 +164,14 @@ fn pair(
             connected: true,
             faults: Vec::new(),
             reconnectable: true,
+            scans: 0,
         }),
         arrived: Condvar::new(),
         source,
         layout,
         seed,
         opened: std::time::Instant::now(),
+        worn: Mutex::new(None),
     });
     let camera = MockCamera {
         shared: shared.clone(),
@@ -258,6 +277,13 @@ fn expose(shared: &Shared, st: &mut State, camera: &str) -> Result<()> {
     let slide = &st.slides[slot];
     let image = match &shared.source {
         Source::Sim(sim) => {
+            let worn;
+            let sim: &Simulator = if sim.scene.wears() && st.scans > 0 {
+                worn = shared.worn(sim, st.scans);
+                &worn
+            } else {
+                sim
+            };
             let gain = 10f64.powf(st.gain_db / 20.0);
             let exposure = st.exposure_us / NOMINAL_EXPOSURE_US * gain;
             let seed = shared.seed.wrapping_mul(1_000_003).wrapping_add(id);

@@ -780,3 +780,91 @@ fn a_browser_signs_in_scans_follows_picks_and_prints() {
     c.stop();
     risd.stop().expect("risd stops");
 }
+
+#[test]
+fn three_cells_behind_a_router_appear_in_one_console() {
+    // The line's router: the Zenoh runtime in router mode.
+    let router_endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let router = zenoh::open(
+        ris_daemon::service::zenoh_config("router", &[router_endpoint.clone()], &[])
+            .expect("router config"),
+    )
+    .wait()
+    .expect("router");
+    let data = tempfile::tempdir().expect("tmp");
+    let mut cells = Vec::new();
+    for name in ["line-a", "line-b", "line-c"] {
+        let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+        let mut config = cell_config(
+            &repo().join("config/wear-cell.toml"),
+            &endpoint,
+            &data.path().join(name),
+        );
+        config.name = name.to_string();
+        config.zenoh.connect = vec![router_endpoint.clone()];
+        let mut risd = InProcess::start(config);
+        risd.wait_ready(Duration::from_secs(180));
+        cells.push(risd);
+    }
+    let db = data.path().join("history.sqlite");
+    let c = console(&router_endpoint, &db, 20, None);
+    let t = Instant::now();
+    let page = loop {
+        let (_, _, body) = http(c.addr, "GET", "/", None, None);
+        let page = String::from_utf8_lossy(&body).into_owned();
+        let all = ["line-a", "line-b", "line-c"]
+            .iter()
+            .all(|n| page.contains(&format!("<option value=\"{n}\">")));
+        if all || t.elapsed() > Duration::from_secs(30) {
+            break page;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    for n in ["line-a", "line-b", "line-c"] {
+        assert!(
+            page.contains(&format!("data-cell=\"{n}\"")),
+            "{n} missing: {page}"
+        );
+    }
+    // A scan on one of them, started through the console and the router, lands in its history.
+    let (_, headers, _) = http(c.addr, "GET", "/", None, None);
+    let cookie = header(&headers, "set-cookie")
+        .expect("cookie")
+        .split(';')
+        .next()
+        .expect("kv")
+        .to_string();
+    let (_, _, body) = http(c.addr, "GET", "/", Some(&cookie), None);
+    let csrf = attribute(&String::from_utf8_lossy(&body), "class=\"start\"", "value");
+    let form = form_encode(&[("csrf", &csrf), ("cell", "line-b"), ("serial", "B-1")]);
+    let (status, headers, body) = http(c.addr, "POST", "/scan", Some(&cookie), Some(&form));
+    assert_eq!(status, 303, "{}", String::from_utf8_lossy(&body));
+    let id = header(&headers, "location")
+        .expect("location")
+        .rsplit('/')
+        .next()
+        .expect("id")
+        .to_string();
+    let t = Instant::now();
+    while !c.history().has("line-b", &id).expect("history") {
+        assert!(
+            t.elapsed() < Duration::from_secs(120),
+            "scan {id} of line-b not recorded"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let (_, _, body) = http(c.addr, "GET", "/scans?cell=line-b", Some(&cookie), None);
+    let page = String::from_utf8_lossy(&body).into_owned();
+    assert!(page.contains(&id) && page.contains("B-1"), "{page}");
+    assert!(data
+        .path()
+        .join("line-b/scans")
+        .join(&id)
+        .join("scan.json")
+        .is_file());
+    c.stop();
+    for risd in cells {
+        risd.stop().expect("risd stops");
+    }
+    let _ = router.close().wait();
+}

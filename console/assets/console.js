@@ -32,6 +32,17 @@
       a.textContent = "ALARM " + e.alarm.cell + ": " + e.alarm.message;
       a.hidden = false;
     }
+    if (e.event === "fused") {
+      var shown = false;
+      document.querySelectorAll("img.fused").forEach(function (img) {
+        if (img.getAttribute("data-cell") === e.cell && img.getAttribute("data-sensor") === e.sensor) {
+          img.src = img.src.split("?")[0] + "?n=" + e.count;
+          shown = true;
+        }
+      });
+      if (!shown) soon();
+      return;
+    }
     if (e.event === "recorded" && scanBox &&
         e.scan.scan_id === scanBox.getAttribute("data-scan") &&
         e.scan.cell === scanBox.getAttribute("data-cell")) {

@@ -48,7 +48,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 fn main() {
     let router_endpoint = format!("tcp/127.0.0.1:{}", free_port());
     let router = zenoh::open(
-        ris_daemon::service::zenoh_config("router", &[router_endpoint.clone()], &[])
+        ris_daemon::service::zenoh_config("router", std::slice::from_ref(&router_endpoint), &[])
             .expect("config"),
     )
     .wait()
@@ -110,7 +110,8 @@ fn main() {
     ris_core::inspect::write_deviation_ply(&ply_path, &points, &devs).expect("ply");
     let ply = std::fs::read(&ply_path).expect("ply");
     let cell = zenoh::open(
-        ris_daemon::service::zenoh_config("peer", &[], &[router_endpoint.clone()]).expect("config"),
+        ris_daemon::service::zenoh_config("peer", &[], std::slice::from_ref(&router_endpoint))
+            .expect("config"),
     )
     .wait()
     .expect("cell session");

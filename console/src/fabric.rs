@@ -10,8 +10,8 @@ use std::time::Duration;
 
 use anyhow::{anyhow, Context, Result};
 use ris_daemon::protocol::{
-    alarms_key, health_key, scan_key, scan_states_key, Health, ScanItem, ScanReply, ScanRequest,
-    ScanState,
+    alarms_key, health_key, scan_key, scan_states_key, stream_sensor_key, Health, ScanItem,
+    ScanReply, ScanRequest, ScanState,
 };
 use serde::Serialize;
 use serde_json::Value;
@@ -68,7 +68,20 @@ pub enum Event {
         /// The alarm.
         alarm: Alarm,
     },
+    /// A streaming sensor's fusion picture changed (fetch it from
+    /// `/cells/<cell>/stream/<sensor>.png`).
+    Fused {
+        /// Cell.
+        cell: String,
+        /// Sensor.
+        sensor: String,
+        /// How many pictures of it the console has seen.
+        count: u64,
+    },
 }
+
+/// The latest fusion picture of each streaming sensor: (cell, sensor) → (pictures seen, PNG).
+type Pictures = BTreeMap<(String, String), (u64, Arc<Vec<u8>>)>;
 
 /// The console's link to every cell.
 pub struct Fabric {
@@ -77,6 +90,7 @@ pub struct Fabric {
     /// The history.
     pub history: Arc<History>,
     cells: Mutex<BTreeMap<String, CellView>>,
+    pictures: Mutex<Pictures>,
     events: broadcast::Sender<Event>,
     /// Scans whose limits the run rules take as the baseline (the first of each part's series).
     baseline: usize,
@@ -91,6 +105,7 @@ impl Fabric {
             session,
             history,
             cells: Mutex::new(BTreeMap::new()),
+            pictures: Mutex::new(BTreeMap::new()),
             events,
             baseline,
         })
@@ -103,6 +118,23 @@ impl Fabric {
     /// The cells found so far and what is known of each.
     pub fn cells(&self) -> BTreeMap<String, CellView> {
         self.cells_lock().clone()
+    }
+
+    /// The latest fusion picture of `cell`'s `sensor` (PNG), if it streamed since the console
+    /// started.
+    pub fn picture(&self, cell: &str, sensor: &str) -> Option<Arc<Vec<u8>>> {
+        let p = self.pictures.lock().unwrap_or_else(|e| e.into_inner());
+        p.get(&(cell.to_string(), sensor.to_string()))
+            .map(|(_, png)| png.clone())
+    }
+
+    /// The sensors of `cell` with a fusion picture.
+    pub fn streaming(&self, cell: &str) -> Vec<String> {
+        let p = self.pictures.lock().unwrap_or_else(|e| e.into_inner());
+        p.keys()
+            .filter(|(c, _)| c == cell)
+            .map(|(_, s)| s.clone())
+            .collect()
     }
 
     /// Events from now on.
@@ -145,6 +177,11 @@ impl Fabric {
             .declare_subscriber(scan_states_key("*"))
             .await
             .map_err(|e| anyhow!("following the scans' states: {e}"))?;
+        let fused = self
+            .session
+            .declare_subscriber(stream_sensor_key("*", "*", "fused"))
+            .await
+            .map_err(|e| anyhow!("following the streams' fusion pictures: {e}"))?;
         let mut tick = tokio::time::interval(HEALTH_EVERY);
         loop {
             tokio::select! {
@@ -174,6 +211,20 @@ impl Fabric {
                     let Some((cell, scan_id, ScanItem::State)) = ScanItem::parse(s.key_expr().as_str()) else { continue };
                     let Ok(state) = serde_json::from_slice::<ScanState>(&s.payload().to_bytes()) else { continue };
                     self.on_state(cell, scan_id, state);
+                }
+                s = fused.recv_async() => {
+                    let Ok(s) = s else { return Ok(()) };
+                    let parts: Vec<&str> = s.key_expr().as_str().split('/').collect();
+                    let ["ris", cell, "stream", sensor, "fused"] = parts.as_slice() else { continue };
+                    let key = (cell.to_string(), sensor.to_string());
+                    let png = Arc::new(s.payload().to_bytes().into_owned());
+                    let count = {
+                        let mut p = self.pictures.lock().unwrap_or_else(|e| e.into_inner());
+                        let e = p.entry(key.clone()).or_insert((0, png.clone()));
+                        *e = (e.0 + 1, png);
+                        e.0
+                    };
+                    self.emit(Event::Fused { cell: key.0, sensor: key.1, count });
                 }
                 _ = tick.tick() => {
                     let alive: Vec<String> = self.cells_lock().iter().filter(|(_, v)| v.alive).map(|(c, _)| c.clone()).collect();

@@ -189,6 +189,21 @@ pub fn cells_table(fabric: &Fabric) -> anyhow::Result<String> {
                 esc(&state_words(st))
             );
         }
+        let streaming = fabric.streaming(cell);
+        if !streaming.is_empty() {
+            o.push_str("<div class=\"fused\">");
+            for sensor in streaming {
+                let _ = write!(
+                    o,
+                    r#"<figure><img class="fused" data-cell="{c}" data-sensor="{s}" src="/cells/{cu}/stream/{su}.png" alt="{s}'s fusion picture"><figcaption>{s}, live</figcaption></figure>"#,
+                    c = esc(cell),
+                    s = esc(&sensor),
+                    cu = url(cell),
+                    su = url(&sensor)
+                );
+            }
+            o.push_str("</div>");
+        }
         if let Some(latest) = fabric.history.latest(cell)? {
             let (word, _, _) = verdict_words(latest.verdict.as_deref());
             let _ = write!(

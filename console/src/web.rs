@@ -46,6 +46,7 @@ pub fn router(app: Arc<App>) -> Router {
         .route("/scans", get(scans))
         .route("/scan", post(start_scan))
         .route("/cells/{cell}/scans/{id}", get(result))
+        .route("/cells/{cell}/stream/{picture}", get(stream_picture))
         .route("/cells/{cell}/scans/{id}/map.png", get(map))
         .route("/cells/{cell}/scans/{id}/deviation.bin", get(deviation))
         .route("/cells/{cell}/scans/{id}/page", get(cell_page))
@@ -356,6 +357,26 @@ async fn stored(
     match app.fabric.fetch(&key).await {
         Ok(bytes) => respond(&v, ([(header::CONTENT_TYPE, content_type)], bytes)),
         Err(e) => Failure(StatusCode::NOT_FOUND, format!("{e:#}")).into_response(),
+    }
+}
+
+/// `/cells/<cell>/stream/<sensor>.png`: the sensor's latest fusion picture.
+async fn stream_picture(
+    State(app): Shared,
+    headers: HeaderMap,
+    Path((cell, picture)): Path<(String, String)>,
+) -> Response {
+    let v = visitor_or_return!(app, headers);
+    let Some(sensor) = picture.strip_suffix(".png") else {
+        return StatusCode::NOT_FOUND.into_response();
+    };
+    match app.fabric.picture(&cell, sensor) {
+        Some(png) => respond(&v, ([(header::CONTENT_TYPE, "image/png")], png.to_vec())),
+        None => Failure(
+            StatusCode::NOT_FOUND,
+            format!("{sensor} of {cell} has streamed no picture since the console started"),
+        )
+        .into_response(),
     }
 }
 

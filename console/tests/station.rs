@@ -455,6 +455,38 @@ fn the_console_backfills_starts_follows_records_and_serves_scans() {
     assert_eq!(means, expected, "{dfq}");
     assert!(dfq.contains("K0014/1 SN-2"), "{dfq}");
 
+    // A stream's fusion pictures, live on the first page.
+    let started = ask(
+        &session,
+        "ris/wear/stream",
+        Some(r#"{"action": "start", "sensors": ["s1"], "rate": 5}"#),
+    );
+    assert!(started[0].is_ok(), "{started:?}");
+    let t = Instant::now();
+    loop {
+        let (status, _, png) = http(
+            c.addr,
+            "GET",
+            "/cells/wear/stream/s1.png",
+            Some(&cookie),
+            None,
+        );
+        if status == 200 {
+            assert!(png.starts_with(b"\x89PNG"), "a PNG");
+            break;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(60),
+            "no fusion picture reached the console"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let (_, _, body) = http(c.addr, "GET", "/", Some(&cookie), None);
+    assert!(String::from_utf8_lossy(&body)
+        .contains("class=\"fused\" data-cell=\"wear\" data-sensor=\"s1\""));
+    let stopped = ask(&session, "ris/wear/stream", Some(r#"{"action": "stop"}"#));
+    assert!(stopped[0].is_ok(), "{stopped:?}");
+
     // The same history from a terminal: `ris scans list` and `fetch` (every stored item).
     let list = common::output_within(
         std::process::Command::new(common::binary("ris")).args([
@@ -786,7 +818,7 @@ fn three_cells_behind_a_router_appear_in_one_console() {
     // The line's router: the Zenoh runtime in router mode.
     let router_endpoint = format!("tcp/127.0.0.1:{}", free_port());
     let router = zenoh::open(
-        ris_daemon::service::zenoh_config("router", &[router_endpoint.clone()], &[])
+        ris_daemon::service::zenoh_config("router", std::slice::from_ref(&router_endpoint), &[])
             .expect("router config"),
     )
     .wait()

@@ -815,15 +815,18 @@ fn a_browser_signs_in_scans_follows_picks_and_prints() {
 
 #[test]
 fn three_cells_behind_a_router_appear_in_one_console() {
-    // The line's router: the Zenoh runtime in router mode.
+    // The station starts first, before the line's router and its cells answer.
     let router_endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let data = tempfile::tempdir().expect("tmp");
+    let db = data.path().join("history.sqlite");
+    let c = console(&router_endpoint, &db, 20, None);
+    // The line's router: the Zenoh runtime in router mode.
     let router = zenoh::open(
         ris_daemon::service::zenoh_config("router", std::slice::from_ref(&router_endpoint), &[])
             .expect("router config"),
     )
     .wait()
     .expect("router");
-    let data = tempfile::tempdir().expect("tmp");
     let mut cells = Vec::new();
     for name in ["line-a", "line-b", "line-c"] {
         let endpoint = format!("tcp/127.0.0.1:{}", free_port());
@@ -838,8 +841,6 @@ fn three_cells_behind_a_router_appear_in_one_console() {
         risd.wait_ready(Duration::from_secs(180));
         cells.push(risd);
     }
-    let db = data.path().join("history.sqlite");
-    let c = console(&router_endpoint, &db, 20, None);
     let t = Instant::now();
     let page = loop {
         let (_, _, body) = http(c.addr, "GET", "/", None, None);

@@ -10,7 +10,7 @@ mod session;
 mod worker;
 
 pub use handlers::validate;
-pub use session::{apply_access, client_config, open, plain, zenoh_config};
+pub use session::{apply_access, client_config, login_config, open, plain, zenoh_config};
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{mpsc, Arc, Mutex};

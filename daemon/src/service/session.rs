@@ -94,7 +94,18 @@ pub fn apply_access(
 /// A client configuration with `user`'s credentials (password from `password_file`, first
 /// line), for `ris scan` and tests against a cell with `[zenoh.access]`.
 pub fn client_config(connect: &[String], user: Option<(&str, &str)>) -> Result<zenoh::Config> {
-    let mut c = zenoh_config("client", &[], connect)?;
+    login_config("client", connect, user)
+}
+
+/// A configuration of `mode` (`client`: fails to open while nothing answers at `connect`;
+/// `peer`: opens at once and links up whenever the endpoints answer, as a station that may
+/// start before its cells) that listens nowhere, with `user`'s credentials.
+pub fn login_config(
+    mode: &str,
+    connect: &[String],
+    user: Option<(&str, &str)>,
+) -> Result<zenoh::Config> {
+    let mut c = zenoh_config(mode, &[], connect)?;
     if let Some((user, password)) = user {
         for (key, value) in [
             ("transport/auth/usrpwd/user", serde_json::to_string(user)?),

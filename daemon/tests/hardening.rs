@@ -350,3 +350,50 @@ fn two_daemons_racing_for_one_cell_leave_exactly_one_serving() {
         a.stop().expect("the first daemon stops cleanly");
     }
 }
+
+/// VmHWM (peak resident memory) of process `pid`, kB.
+fn peak_kb(pid: u32) -> u64 {
+    std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .expect("status")
+        .lines()
+        .find_map(|l| l.strip_prefix("VmHWM:"))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+        .expect("VmHWM")
+}
+
+#[test]
+fn huge_request_bodies_are_dropped_before_they_fill_memory() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let config = tiny_cell(tmp.path());
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let mut risd = start(&config, &tmp.path().join("data"), &endpoint, None);
+    risd.wait_ready(Duration::from_secs(120));
+    let session = client(&endpoint);
+    let before = peak_kb(risd.pid());
+    // Three 200 MB bodies on the scan key: Zenoh drops each as its fragments pass the limit.
+    let body = "x".repeat(200 << 20);
+    for _ in 0..3 {
+        let replies = session
+            .get("ris/tiny/scan")
+            .payload(body.clone())
+            .timeout(Duration::from_secs(5))
+            .wait()
+            .expect("get");
+        while replies.recv().is_ok() {}
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    let after = peak_kb(risd.pid());
+    eprintln!(
+        "risd's peak resident memory {before} kB before, {after} kB after three 200 MB requests"
+    );
+    assert!(
+        after < before + 64 * 1024,
+        "the peak rose by {} MB",
+        (after - before) / 1024
+    );
+    // The daemon still answers a proper request.
+    let r = ask(&session, "ris/tiny/health", None);
+    assert!(r.first().is_some_and(|r| r.is_ok()), "{r:?}");
+    let (status, lines) = risd.terminate();
+    assert!(status.success(), "{lines:#?}");
+}

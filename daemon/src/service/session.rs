@@ -121,6 +121,9 @@ pub fn login_config(
     Ok(c)
 }
 
+/// The largest message risd's session reassembles, bytes: 16 requests of the largest size.
+pub const MAX_RECEIVED: usize = 16 * crate::protocol::MAX_REQUEST;
+
 /// Whether an endpoint listens on loopback only.
 fn is_loopback(endpoint: &str) -> bool {
     let address = endpoint.split_once('/').map_or("", |(_, a)| a);
@@ -132,6 +135,14 @@ fn is_loopback(endpoint: &str) -> bool {
 pub async fn open(config: &CellConfig) -> Result<Session> {
     let z = &config.zenoh;
     let mut zc = zenoh_config(&z.mode, &z.listen, &z.connect)?;
+    // risd receives requests (at most MAX_REQUEST bytes) and liveliness, never bulk data: a
+    // message larger than this is dropped by Zenoh as it arrives, before it is reassembled, so
+    // no client can make risd hold a huge body in memory.
+    zc.insert_json5(
+        "transport/link/rx/max_message_size",
+        &MAX_RECEIVED.to_string(),
+    )
+    .map_err(|e| anyhow!("zenoh config transport/link/rx/max_message_size: {e}"))?;
     if let Some(access) = &z.access {
         apply_access(&mut zc, &config.name, access, crate::ros2::acl_keys(config))?;
     } else if z.listen.iter().any(|e| !is_loopback(e)) {

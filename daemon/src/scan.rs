@@ -676,6 +676,46 @@ fn acquire_pair(
     }
 }
 
+/// How often a stage that cannot be interrupted tells its state again.
+pub const STAGE_BEAT: std::time::Duration = std::time::Duration::from_secs(2);
+/// How long such a stage keeps telling it: past this the stage counts as hung, its state goes
+/// quiet, and the worker's heartbeat with it (systemd's watchdog then restarts risd).
+pub const STAGE_DEADLINE: std::time::Duration = std::time::Duration::from_secs(600);
+
+/// Run `work` on this thread while another calls `tell` every `every`, until `work` returns or
+/// `deadline` passes (then `stage` is logged as overdue and `tell` is no longer called).
+pub fn while_running<T: Send>(
+    stage: &str,
+    tell: &(dyn Fn() + Sync),
+    every: std::time::Duration,
+    deadline: std::time::Duration,
+    work: impl FnOnce() -> T + Send,
+) -> T {
+    let done = std::sync::atomic::AtomicBool::new(false);
+    let start = Instant::now();
+    std::thread::scope(|scope| {
+        let teller = scope.spawn(|| loop {
+            std::thread::park_timeout(every);
+            if done.load(std::sync::atomic::Ordering::SeqCst) {
+                return;
+            }
+            if start.elapsed() > deadline {
+                tracing::error!(
+                    stage,
+                    deadline_s = deadline.as_secs(),
+                    "the stage is past its deadline: its progress and the worker's heartbeat stop"
+                );
+                return;
+            }
+            tell();
+        });
+        let out = work();
+        done.store(true, std::sync::atomic::Ordering::SeqCst);
+        teller.thread().unpark();
+        out
+    })
+}
+
 /// Register the merged cloud (cell frame, which the cell calibration puts on the part's
 /// nominal pose) to the part and write `deviation.ply`, `deviation.png` and `report.json`.
 fn inspect_part(
@@ -701,17 +741,26 @@ fn inspect_part(
         .map(|(_, p)| p.map(f64::from))
         .collect();
     let outside = merged.len() - points.len();
-    let mut r = inspect(
-        &points,
-        &part.cad,
-        &InspectParams {
-            tolerance: part.tolerance,
-            datums: part.datums.clone(),
-            init: Some(ris_core::register::Pose::identity()),
-            min_coverage: part.min_coverage,
-            fit_pose: part.fit_pose,
-            ..InspectParams::default()
-        },
+    let params = InspectParams {
+        tolerance: part.tolerance,
+        datums: part.datums.clone(),
+        init: Some(ris_core::register::Pose::identity()),
+        min_coverage: part.min_coverage,
+        fit_pose: part.fit_pose,
+        ..InspectParams::default()
+    };
+    // The inspection cannot be interrupted: while it runs (up to STAGE_DEADLINE) its state is
+    // told again every STAGE_BEAT, which keeps the worker's heartbeat and the clients' progress
+    // alive.
+    let inspecting = ScanState::Inspecting {
+        part: part.id.clone(),
+    };
+    let mut r = while_running(
+        "inspection",
+        &|| state(&inspecting),
+        STAGE_BEAT,
+        STAGE_DEADLINE,
+        || inspect(&points, &part.cad, &params),
     )
     .with_context(|| {
         let mut why = format!("inspecting part {}", part.id);
@@ -812,9 +861,46 @@ fn utc_now() -> (i64, i64, i64, u64, u64, u64, u32) {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
+    #[test]
+    fn a_long_stage_tells_its_state_until_it_ends_or_passes_its_deadline() {
+        use std::sync::atomic::{AtomicUsize, Ordering};
+        use std::time::Duration;
+        let told = AtomicUsize::new(0);
+        let tell = || {
+            told.fetch_add(1, Ordering::SeqCst);
+        };
+        let ms = Duration::from_millis;
+        let t = Instant::now();
+        let out = while_running("test", &tell, ms(50), ms(10_000), || {
+            std::thread::sleep(ms(520));
+            7
+        });
+        assert_eq!(out, 7);
+        let n = told.load(Ordering::SeqCst);
+        assert!((8..=11).contains(&n), "{n} tellings in 520 ms at 50 ms");
+        assert!(
+            t.elapsed() < ms(700),
+            "the teller does not hold the stage up"
+        );
+        std::thread::sleep(ms(150));
+        assert_eq!(told.load(Ordering::SeqCst), n, "none after the stage ended");
+        // Past the deadline the stage goes quiet (a hung stage starves the watchdog).
+        told.store(0, Ordering::SeqCst);
+        while_running("test", &tell, ms(50), ms(200), || {
+            std::thread::sleep(ms(600))
+        });
+        let n = told.load(Ordering::SeqCst);
+        assert!(
+            (2..=4).contains(&n),
+            "{n} tellings before a 200 ms deadline at 50 ms"
+        );
+    }
+
     #[test]
     fn scan_ids_are_utc_timestamps() {
-        let id = super::new_scan_id(3);
+        let id = new_scan_id(3);
         assert_eq!(id.len(), "20261122T084921.028Z-3".len(), "{id}");
         assert!(id.starts_with("20") && id.ends_with("Z-3"), "{id}");
     }

@@ -86,26 +86,7 @@ pub async fn start(options: Options, shutdown: CancellationToken) -> Result<Cons
     let history = Arc::new(History::open(&options.db)?);
     // A peer that listens nowhere: it opens whether or not the cells (or the router) answer
     // yet, and links up with them whenever they do.
-    if options.connect.is_empty() {
-        bail!("--connect: give a risd's or a router's endpoint, e.g. tcp/127.0.0.1:7447");
-    }
-    ris_daemon::config::check_endpoints("command line", "--connect", &options.connect)?;
-    let password = match &options.zenoh_user {
-        Some((user, file)) => {
-            let text = std::fs::read_to_string(file)
-                .with_context(|| format!("--password-file: reading {}", file.display()))?;
-            Some((
-                user.clone(),
-                text.lines().next().unwrap_or_default().to_string(),
-            ))
-        }
-        None => None,
-    };
-    let config = ris_daemon::service::login_config(
-        "peer",
-        &options.connect,
-        password.as_ref().map(|(u, p)| (u.as_str(), p.as_str())),
-    )?;
+    let config = ris_daemon::client::login("peer", &options.connect, options.zenoh_user.as_ref())?;
     let session = zenoh::open(config).await.map_err(|e| {
         anyhow!(
             "cannot join the fabric at {}: {}",

@@ -531,7 +531,13 @@ async fn export(
         "export.dfq" => ("text/plain; charset=utf-8", export::aqdef),
         _ => return StatusCode::NOT_FOUND.into_response(),
     };
-    match part_table(&app.fabric, &part) {
+    // One query per scan: off the async runtime.
+    let (fabric, p) = (app.fabric.clone(), part.clone());
+    let table = tokio::task::spawn_blocking(move || part_table(&fabric, &p)).await;
+    match table
+        .map_err(|e| anyhow::anyhow!("exporting {part}: {e}"))
+        .and_then(|t| t)
+    {
         Ok((columns, rows)) => respond(
             &v,
             (

@@ -13,12 +13,14 @@ use serde::Serialize;
 use crate::protocol::ErrorReply;
 use crate::service::plain;
 
-/// A client session to `connect`, logged in as the user of `credentials` (user, file whose
-/// first line is the password) when the cell has `[zenoh.access]`.
-pub async fn open(
+/// The Zenoh configuration of a session of `mode` (see [`crate::service::login_config`]) to
+/// `connect`, logged in as the user of `credentials` (user, file whose first line is the
+/// password) when the cell has `[zenoh.access]`.
+pub fn login(
+    mode: &str,
     connect: &[String],
     credentials: Option<&(String, PathBuf)>,
-) -> Result<zenoh::Session> {
+) -> Result<zenoh::Config> {
     let password = match credentials {
         Some((user, file)) => {
             let text = std::fs::read_to_string(file)
@@ -31,13 +33,22 @@ pub async fn open(
         None => None,
     };
     if connect.is_empty() {
-        bail!("--connect: give the daemon's endpoint, e.g. tcp/127.0.0.1:7447");
+        bail!("--connect: give the daemon's or the router's endpoint, e.g. tcp/127.0.0.1:7447");
     }
     crate::config::check_endpoints("command line", "--connect", connect)?;
-    let config = crate::service::client_config(
+    crate::service::login_config(
+        mode,
         connect,
         password.as_ref().map(|(u, p)| (u.as_str(), p.as_str())),
-    )?;
+    )
+}
+
+/// A client session to `connect` (see [`login`]); fails while no risd answers there.
+pub async fn open(
+    connect: &[String],
+    credentials: Option<&(String, PathBuf)>,
+) -> Result<zenoh::Session> {
+    let config = login("client", connect, credentials)?;
     zenoh::open(config).await.map_err(|_| {
         anyhow!(
             "no risd answers at {}: start it there (risd, or systemctl start risd), or give its endpoint with --connect",

@@ -1,10 +1,11 @@
-//! Triangle meshes: STL (binary and ASCII), PLY and OBJ input, a bounding-volume hierarchy for
-//! ray casts and signed point-to-mesh distances.
+//! Triangle meshes: STL (binary and ASCII), PLY, OBJ and STEP (feature `step`) input, a
+//! bounding-volume hierarchy for ray casts and signed point-to-mesh distances.
 
 mod bvh;
 mod distance;
 mod obj;
 mod ply;
+pub mod step;
 pub mod stl;
 
 pub use bvh::{Bvh, RayHit};
@@ -37,11 +38,16 @@ impl TriangleMesh {
     }
 
     /// Read a mesh in any supported format: STL (binary or ASCII), PLY (ASCII or binary, a
-    /// `vertex` and a `face` element; polygons split into fans) or Wavefront OBJ (`v` and `f`
-    /// lines; polygons split into fans). The format is recognised by content (`ply` magic, STL
-    /// size or `solid`, OBJ statements), whatever the extension.
+    /// `vertex` and a `face` element; polygons split into fans), Wavefront OBJ (`v` and `f`
+    /// lines; polygons split into fans) or STEP (tessellated by [`step::read`] with its default
+    /// options; its faces are dropped here). The format is recognised by content (`ply` magic,
+    /// STL size or `solid`, OBJ statements, the ISO 10303-21 header), whatever the extension.
     pub fn load(path: &std::path::Path) -> crate::Result<TriangleMesh> {
         let bytes = std::fs::read(path).map_err(|e| crate::Error::io(path, e))?;
+        if step::looks_like(&bytes) {
+            drop(bytes);
+            return step::read(path, &step::StepOptions::default()).map(|m| m.mesh);
+        }
         let tris = if stl::is_binary(&bytes) {
             stl::parse(&bytes)
         } else if bytes.starts_with(b"ply") {
@@ -50,7 +56,7 @@ impl TriangleMesh {
             obj::parse(&bytes)
         } else {
             stl::parse(&bytes).map_err(|e| {
-                format!("{e}; the CAD formats read are STL (binary or ASCII), PLY and OBJ meshes")
+                format!("{e}; the CAD formats read are STL (binary or ASCII), PLY and OBJ meshes and STEP")
             })
         }
         .map_err(|message| crate::Error::Format {

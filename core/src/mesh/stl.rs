@@ -87,14 +87,21 @@ pub(super) fn finish(path: &Path, tris: Vec<[Vec3; 3]>) -> Result<TriangleMesh> 
 /// Weld vertices by exact position and drop zero-area triangles (repeated or collinear
 /// corners: they have no normal and no surface); returns the mesh and how many were dropped.
 pub(crate) fn weld(tris: Vec<[Vec3; 3]>) -> (TriangleMesh, usize) {
+    let n = tris.len();
+    let (mesh, kept) = weld_tagged(tris);
+    (mesh, n - kept.len())
+}
+
+/// [`weld`], returning for each triangle of the mesh the index of the input triangle it came
+/// from (so per-triangle data such as a CAD face id follows the triangles that were kept).
+pub(crate) fn weld_tagged(tris: Vec<[Vec3; 3]>) -> (TriangleMesh, Vec<usize>) {
     let mut mesh = TriangleMesh::default();
+    let mut kept = Vec::with_capacity(tris.len());
     let mut index: HashMap<[u64; 3], u32> = HashMap::new();
-    let mut degenerate = 0;
-    for t in tris {
+    for (i, t) in tris.into_iter().enumerate() {
         let scale = (t[1] - t[0]).norm().max((t[2] - t[0]).norm());
         let area2 = (t[1] - t[0]).cross(&(t[2] - t[0])).norm();
         if area2.is_nan() || area2 <= 1e-12 * scale * scale {
-            degenerate += 1;
             continue;
         }
         let ids = t.map(|v| {
@@ -107,11 +114,10 @@ pub(crate) fn weld(tris: Vec<[Vec3; 3]>) -> (TriangleMesh, usize) {
         });
         if ids[0] != ids[1] && ids[1] != ids[2] && ids[0] != ids[2] {
             mesh.triangles.push(ids);
-        } else {
-            degenerate += 1;
+            kept.push(i);
         }
     }
-    (mesh, degenerate)
+    (mesh, kept)
 }
 
 pub(super) fn is_binary(bytes: &[u8]) -> bool {

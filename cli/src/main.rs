@@ -431,32 +431,7 @@ enum Command {
     },
     /// Inspect a cloud against its CAD model: deviation map, report and verdict (exit status 3
     /// when the part fails, 4 when too little of it or of a datum was measured for a verdict).
-    Inspect {
-        /// Measured cloud (PLY).
-        #[arg(long)]
-        cloud: PathBuf,
-        /// CAD model (STL, binary or ASCII; PLY or OBJ mesh)
-        #[arg(long)]
-        cad: PathBuf,
-        /// Datums (datum tables: name, position, radius; with `order`, a 3-2-1 frame of surface, point,
-        /// hole, slot and edge features); without them trusted regions are grown.
-        #[arg(long)]
-        datums: Option<PathBuf>,
-        /// Tolerance on |deviation|, mm.
-        #[arg(long)]
-        tolerance: f64,
-        /// Minimum fraction of the CAD surface the cloud must cover for a verdict (0 … 1).
-        #[arg(long, default_value_t = 0.5)]
-        min_coverage: f64,
-        /// The pose when it is known, so nothing is searched or fitted: `known` (the cloud is in
-        /// the CAD's frame already) or a transform file (TOML `matrix`, cad_from_cloud, as
-        /// `ris register` writes it). Without it the pose is found.
-        #[arg(long, value_name = "known|FILE")]
-        pose: Option<String>,
-        /// Output directory (deviation.ply, deviation.png, report.json).
-        #[arg(long)]
-        out: PathBuf,
-    },
+    Inspect(commands::inspect::InspectCommand),
     /// Acceptance test or re-verification by VDI/VDE 2634-2 (ISO 10360-13): PF, PS, SD and F
     /// from clouds of calibrated artefacts against the MPE, or a running cell's verification
     /// session (exit status 3 when a figure fails, 4 when an artefact was not measured).
@@ -803,24 +778,8 @@ fn main() -> Result<()> {
                 std::process::exit(code);
             }
         }
-        Command::Inspect {
-            cloud,
-            cad,
-            datums,
-            tolerance,
-            min_coverage,
-            pose,
-            out,
-        } => {
-            let report = commands::inspect::run(
-                &cloud,
-                &cad,
-                datums.as_deref(),
-                tolerance,
-                min_coverage,
-                pose.as_deref(),
-                &out,
-            )?;
+        Command::Inspect(c) => {
+            let report = commands::inspect::command(&c)?;
             if let Some(code) = commands::verdict_exit_code(&report.verdict) {
                 std::process::exit(code);
             }

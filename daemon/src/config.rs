@@ -197,7 +197,8 @@ pub struct SensorSection {
 pub struct PartSection {
     /// Part id named by scan requests.
     pub id: String,
-    /// CAD model (STL, binary or ASCII; PLY or OBJ mesh), cell frame.
+    /// CAD model (STEP in a build with the `step` feature; STL, binary or ASCII; PLY or OBJ
+    /// mesh), cell frame.
     pub cad: PathBuf,
     /// Datums (`[[datum]] name, position, radius`, and for a 3-2-1 frame `order`, `feature`).
     #[serde(default)]
@@ -213,6 +214,26 @@ pub struct PartSection {
     /// every deviation is measured where it lies.
     #[serde(default)]
     pub pose: PartPose,
+    /// The surface coverage and the verdict are about: `whole` (default, every face of the
+    /// CAD) or `seen` (what the scanning sensors' cameras and projectors can see of the part
+    /// where it lies).
+    #[serde(default)]
+    pub inspected: PartSurface,
+    /// The inspected surface as STEP faces, by entity number (`faces = [17, 137]`, the `#n` of
+    /// their ADVANCED_FACE); needs a STEP `cad`. Points closest to other faces are left out.
+    #[serde(default)]
+    pub faces: Vec<u32>,
+}
+
+/// Which part of a part's CAD its inspection is about.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PartSurface {
+    /// Every face of the CAD.
+    #[default]
+    Whole,
+    /// What the scanning sensors can see (camera and projector both).
+    Seen,
 }
 
 /// How a part's pose in the cell is found.
@@ -525,6 +546,10 @@ pub struct PartConfig {
     pub min_coverage: f64,
     /// Whether the pose is fitted or known.
     pub pose: PartPose,
+    /// The inspected surface (with `faces` empty).
+    pub inspected: PartSurface,
+    /// The inspected STEP faces (entity numbers); empty: `inspected` says.
+    pub faces: Vec<u32>,
 }
 
 /// A validated cell configuration, paths resolved against the file's directory.
@@ -925,6 +950,12 @@ impl CellConfig {
                     format!("{} must be within 0 … 1", p.min_coverage),
                 ));
             }
+            if !p.faces.is_empty() && p.inspected == PartSurface::Seen {
+                return Err(field(
+                    &f("faces"),
+                    "give the inspected surface either as `faces` or as `inspected = \"seen\"`, not both".into(),
+                ));
+            }
             parts.push(PartConfig {
                 id: p.id.clone(),
                 cad: resolve(&p.cad),
@@ -932,6 +963,8 @@ impl CellConfig {
                 tolerance: p.tolerance,
                 min_coverage: p.min_coverage,
                 pose: p.pose,
+                inspected: p.inspected,
+                faces: p.faces.clone(),
             });
         }
         let mut zenoh = file.zenoh.clone();
@@ -1196,8 +1229,7 @@ impl CellConfig {
             ris_core::verify::Artefacts::load(&v.artefacts).context("verify.artefacts")?;
         }
         for p in &self.parts {
-            let mesh = ris_core::mesh::TriangleMesh::load(&p.cad)
-                .with_context(|| format!("part {}: CAD", p.id))?;
+            let mesh = crate::scan::Part::load_cad(p)?.0;
             if let Some(d) = &p.datums {
                 let datums = ris_core::inspect::load_datums(d)
                     .with_context(|| format!("part {}: datums", p.id))?;

@@ -192,10 +192,20 @@ fn render(
             ),
             ("beyond the CAD", num(&st["beyond_cad"], 0)),
             (
-                "coverage of the CAD surface",
-                r["coverage"]["fraction"]
-                    .as_f64()
-                    .map_or("–".into(), |w| format!("{:.1} %", 100.0 * w)),
+                "outside the inspected surface",
+                num(&st["outside_inspected"], 0),
+            ),
+            (
+                "coverage",
+                r["coverage"]["fraction"].as_f64().map_or("–".into(), |w| {
+                    format!(
+                        "{:.1} % of {}",
+                        100.0 * w,
+                        esc(r["coverage"]["surface"]
+                            .as_str()
+                            .unwrap_or("the whole CAD surface"))
+                    )
+                }),
             ),
         ]
         .into_iter()

@@ -57,6 +57,20 @@ pub struct Pair {
 }
 
 impl Pair {
+    /// Where this pair looks from in the cell frame (its camera's and projector's centres), so
+    /// that a part's inspected surface can be what the scan could see; `None` for an omni
+    /// sensor.
+    pub fn viewpoint(&self) -> Option<ris_core::inspect::Viewpoint> {
+        let (camera, projector) = self.reconstructor.as_ref()?.centres();
+        let cell = |v: ris_core::geometry::Vec3| -> [f64; 3] {
+            let h = self.to_common * nalgebra::Vector4::new(v.x, v.y, v.z, 1.0);
+            [h.x, h.y, h.z]
+        };
+        Some(ris_core::inspect::Viewpoint {
+            camera: cell(camera),
+            projector: Some(cell(projector)),
+        })
+    }
     /// The camera's and the projector's ids.
     pub fn devices(&self) -> (String, String) {
         (

@@ -14,9 +14,10 @@ use ris_core::capture::CaptureSet;
 use ris_core::cloud::{Merger, PointCloud};
 use ris_core::decode::{decode, DecodeParams};
 use ris_core::inspect::{
-    inspect, load_datums, write_deviation_ply, write_deviation_png, Datum, InspectParams, MapTitle,
+    inspect, load_datums, write_deviation_ply, write_deviation_png, Datum, InspectParams,
+    InspectedSurface, MapTitle,
 };
-use ris_core::mesh::{SignedDistance, TriangleMesh};
+use ris_core::mesh::{step, SignedDistance, TriangleMesh};
 use ris_core::pattern::Pattern;
 use ris_core::sensor::Reconstructor;
 use ris_drivers::adaptive::{adaptive_scan, AdaptiveParams};
@@ -24,8 +25,8 @@ use ris_drivers::sequence::acquire;
 use ris_drivers::Slide;
 use serde::Serialize;
 
-use crate::config::PartConfig;
 use crate::config::SensorKind;
+use crate::config::{PartConfig, PartSurface};
 pub use crate::pair::Pair;
 use crate::protocol::{ScanMode, ScanState};
 use crate::single_shot::OneShot;
@@ -151,13 +152,51 @@ pub struct Part {
     tolerance: f64,
     min_coverage: f64,
     fit_pose: bool,
+    /// The inspected surface: the whole CAD or named faces (`Whole` also for `seen`, which
+    /// each scan makes from its sensors).
+    surface: InspectedSurface,
+    seen: bool,
 }
 
 impl Part {
+    /// The CAD of `config` and, with `faces`, the inspected surface they make (a STEP model's
+    /// faces by entity number).
+    pub fn load_cad(config: &PartConfig) -> Result<(TriangleMesh, InspectedSurface)> {
+        let what = || format!("part {}: CAD {}", config.id, config.cad.display());
+        if config.faces.is_empty() {
+            let mesh = TriangleMesh::load(&config.cad).with_context(what)?;
+            return Ok((mesh, InspectedSurface::Whole));
+        }
+        let model = step::read(&config.cad, &step::StepOptions::default())
+            .with_context(|| format!("{} (`faces` needs a STEP model)", what()))?;
+        let mut index = Vec::new();
+        for n in &config.faces {
+            let i = model
+                .faces
+                .iter()
+                .position(|f| f.entity == *n)
+                .ok_or_else(|| {
+                    anyhow!("part {}: faces: the STEP model has no face #{n}", config.id)
+                })?;
+            index.push(i as u32);
+        }
+        let triangles = model.face_of.iter().map(|f| index.contains(f)).collect();
+        let label = format!(
+            "face{} {}",
+            if index.len() == 1 { "" } else { "s" },
+            config
+                .faces
+                .iter()
+                .map(|n| format!("#{n}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        Ok((model.mesh, InspectedSurface::Faces { triangles, label }))
+    }
+
     /// Load the CAD model and datums of `config` and index the surface.
     pub fn prepare(config: &PartConfig) -> Result<Part> {
-        let mesh = TriangleMesh::load(&config.cad)
-            .with_context(|| format!("part {}: CAD {}", config.id, config.cad.display()))?;
+        let (mesh, surface) = Part::load_cad(config)?;
         let datums = match &config.datums {
             Some(d) => load_datums(d).with_context(|| format!("part {}: datums", config.id))?,
             None => Vec::new(),
@@ -169,6 +208,8 @@ impl Part {
             tolerance: config.tolerance,
             min_coverage: config.min_coverage,
             fit_pose: config.pose == crate::config::PartPose::Fit,
+            surface,
+            seen: config.inspected == PartSurface::Seen,
         })
     }
 }
@@ -503,10 +544,17 @@ fn scan_into(
     }
     let mut warnings = warnings;
     warnings.extend(options.notes.iter().cloned());
+    let viewpoints: Vec<_> = pairs
+        .iter()
+        .zip(selected)
+        .filter(|(_, s)| **s)
+        .filter_map(|(p, _)| p.viewpoint())
+        .collect();
     let inspection = match options.part {
         Some(part) => Some(inspect_part(
             part,
             &merged,
+            &viewpoints,
             dir,
             &secs,
             state,
@@ -718,9 +766,11 @@ pub fn while_running<T: Send>(
 
 /// Register the merged cloud (cell frame, which the cell calibration puts on the part's
 /// nominal pose) to the part and write `deviation.ply`, `deviation.png` and `report.json`.
+#[allow(clippy::too_many_arguments)]
 fn inspect_part(
     part: &Part,
     merged: &PointCloud,
+    viewpoints: &[ris_core::inspect::Viewpoint],
     dir: &Path,
     secs: &dyn Fn() -> f64,
     state: &(dyn Fn(&ScanState) + Sync),
@@ -747,6 +797,12 @@ fn inspect_part(
         init: Some(ris_core::register::Pose::identity()),
         min_coverage: part.min_coverage,
         fit_pose: part.fit_pose,
+        // an omni-only scan has no viewpoint of a projector and camera pair: the whole CAD
+        surface: if part.seen && !viewpoints.is_empty() {
+            InspectedSurface::SeenFrom(viewpoints.to_vec())
+        } else {
+            part.surface.clone()
+        },
         ..InspectParams::default()
     };
     // The inspection cannot be interrupted: while it runs (up to STAGE_DEADLINE) its state is

@@ -44,6 +44,8 @@ fn table_part(dir: &Path) -> ris_daemon::config::PartConfig {
         tolerance: 0.5,
         min_coverage: 0.0,
         pose: ris_daemon::config::PartPose::Fit,
+        inspected: ris_daemon::config::PartSurface::Whole,
+        faces: Vec::new(),
     }
 }
 

@@ -1,31 +1,69 @@
 //! `ris inspect`: a measured cloud against its CAD model — deviation.ply, deviation.png and
 //! report.json with the pass/fail verdict.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use ris_core::cloud::PointCloud;
 use ris_core::inspect::{
-    inspect, load_datums, write_deviation_ply, write_deviation_png, InspectParams, MapTitle, Report,
+    inspect, load_datums, write_deviation_ply, write_deviation_png, InspectParams,
+    InspectedSurface, MapTitle, Report, Viewpoint,
 };
-use ris_core::mesh::{SignedDistance, TriangleMesh};
+use ris_core::mesh::{step, SignedDistance, TriangleMesh};
 
-/// Inspect `cloud` against `cad` (STL, PLY or OBJ mesh) and write the three outputs into `out`.
-pub fn run(
-    cloud: &Path,
-    cad: &Path,
-    datums: Option<&Path>,
-    tolerance: f64,
-    min_coverage: f64,
-    pose: Option<&str>,
-    out: &Path,
-) -> Result<Report> {
+/// `ris inspect`'s arguments.
+#[derive(clap::Args, Debug)]
+pub struct InspectCommand {
+    /// Measured cloud (PLY).
+    #[arg(long)]
+    pub cloud: PathBuf,
+    /// CAD model: STEP (AP203/AP214/AP242; a build with the `step` feature), or an STL, PLY or
+    /// OBJ mesh.
+    #[arg(long)]
+    pub cad: PathBuf,
+    /// Datums (datum tables: name, position, radius; with `order`, a 3-2-1 frame of surface,
+    /// point, hole, slot and edge features); without them trusted regions are grown.
+    #[arg(long)]
+    pub datums: Option<PathBuf>,
+    /// Tolerance on |deviation|, mm.
+    #[arg(long)]
+    pub tolerance: f64,
+    /// Minimum fraction of the inspected surface the cloud must cover for a verdict (0 … 1).
+    #[arg(long, default_value_t = 0.5)]
+    pub min_coverage: f64,
+    /// The pose when it is known, so nothing is searched or fitted: `known` (the cloud is in
+    /// the CAD's frame already) or a transform file (TOML `matrix`, cad_from_cloud, as
+    /// `ris register` writes it). Without it the pose is found.
+    #[arg(long, value_name = "known|FILE")]
+    pub pose: Option<String>,
+    /// The inspected surface as STEP faces: their entity numbers (`#17,#137` or `17,137`, as
+    /// the file and a CAD system's face picker give them). Coverage and the verdict count over
+    /// these faces only; points closest to other faces are left out.
+    #[arg(long, value_delimiter = ',', value_name = "ENTITY,...")]
+    pub faces: Vec<String>,
+    /// The inspected surface as what the scan could see: a sensor's camera centre and, after a
+    /// colon, its projector's (`X,Y,Z` or `X,Y,Z:X,Y,Z`, mm, the cloud's frame); repeat for each
+    /// sensor. Coverage counts over the CAD surface seen from at least one of them.
+    #[arg(long, value_name = "X,Y,Z[:X,Y,Z]")]
+    pub seen_from: Vec<String>,
+    /// Output directory (deviation.ply, deviation.png, report.json).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Run `ris inspect`; the report, whose verdict gives the exit status.
+pub fn command(cmd: &InspectCommand) -> Result<Report> {
     anyhow::ensure!(
-        tolerance.is_finite() && tolerance > 0.0,
-        "--tolerance must be a positive number of mm, got {tolerance}"
+        cmd.tolerance.is_finite() && cmd.tolerance > 0.0,
+        "--tolerance must be a positive number of mm, got {}",
+        cmd.tolerance
     );
-    let known = match pose {
+    anyhow::ensure!(
+        cmd.faces.is_empty() || cmd.seen_from.is_empty(),
+        "give the inspected surface either as --faces or as --seen-from, not both"
+    );
+    let known = match cmd.pose.as_deref() {
         None => None,
         Some("known") => Some(ris_core::register::Pose::identity()),
         Some(file) => Some(
@@ -33,6 +71,12 @@ pub fn run(
                 .with_context(|| format!("--pose: reading the transform {file}"))?,
         ),
     };
+    let viewpoints = cmd
+        .seen_from
+        .iter()
+        .map(|s| parse_viewpoint(s))
+        .collect::<Result<Vec<_>>>()?;
+    let (cloud, cad, out) = (&cmd.cloud, &cmd.cad, &cmd.out);
     let bar = crate::progress::bar(5, "reading cloud");
     let mut c =
         PointCloud::read_ply(cloud).with_context(|| format!("reading {}", cloud.display()))?;
@@ -40,8 +84,23 @@ pub fn run(
     let outside = c.drop_outside();
     bar.inc(1);
     bar.set_message("reading CAD");
-    let mesh = TriangleMesh::load(cad).with_context(|| format!("reading CAD {}", cad.display()))?;
-    let datums = match datums {
+    let (mesh, surface) = if cmd.faces.is_empty() {
+        let mesh =
+            TriangleMesh::load(cad).with_context(|| format!("reading CAD {}", cad.display()))?;
+        let surface = if viewpoints.is_empty() {
+            InspectedSurface::Whole
+        } else {
+            InspectedSurface::SeenFrom(viewpoints)
+        };
+        (mesh, surface)
+    } else {
+        let model = step::read(cad, &step::StepOptions::default()).with_context(|| {
+            format!("reading CAD {} (--faces needs a STEP model)", cad.display())
+        })?;
+        let surface = faces_surface(&model, &cmd.faces)?;
+        (model.mesh, surface)
+    };
+    let datums = match cmd.datums.as_deref() {
         Some(p) => load_datums(p).with_context(|| format!("reading datums {}", p.display()))?,
         None => Vec::new(),
     };
@@ -64,11 +123,12 @@ pub fn run(
         &pts,
         &sd,
         &InspectParams {
-            tolerance,
+            tolerance: cmd.tolerance,
             datums: datums.clone(),
-            min_coverage,
+            min_coverage: cmd.min_coverage,
             init: known,
             fit_pose: known.is_none(),
+            surface,
             ..InspectParams::default()
         },
     )
@@ -107,22 +167,37 @@ pub fn run(
             s.non_finite
         );
     }
+    let how = match r.report.registration.mode.as_str() {
+        "known pose" => "at the known pose".to_string(),
+        mode => format!("{mode} registration"),
+    };
+    let deviations = if s.points == 0 {
+        "no deviation measured".to_string()
+    } else {
+        format!(
+            "deviation mean {:+.3} mm, RMS {:.3} mm, range {:+.3} … {:+.3} mm, {:.1} % within ±{} mm",
+            s.mean,
+            s.rms,
+            s.min,
+            s.max,
+            100.0 * s.within_tolerance,
+            cmd.tolerance
+        )
+    };
     println!(
-        "{}: {} points, {:.1} % of the CAD surface measured, deviation mean {:+.3} mm, RMS {:.3} mm, range {:+.3} … {:+.3} mm, {:.1} % within ±{tolerance} mm ({}, {:.1} s)",
+        "{}: {} points, {:.1} % of {} measured, {deviations} ({how}, {:.1} s)",
         r.report.verdict.to_uppercase().replace('_', " "),
         s.points,
         100.0 * r.report.coverage.fraction,
-        s.mean,
-        s.rms,
-        s.min,
-        s.max,
-        100.0 * s.within_tolerance,
-        match r.report.registration.mode.as_str() {
-            "known pose" => "at the known pose".to_string(),
-            mode => format!("{mode} registration"),
-        },
+        r.report.coverage.surface,
         elapsed.as_secs_f64()
     );
+    if s.outside_inspected > 0 {
+        println!(
+            "  {} points closest to faces outside the inspected surface left out",
+            s.outside_inspected
+        );
+    }
     for reason in &r.report.reasons {
         println!("  - {reason}");
     }
@@ -162,4 +237,70 @@ fn name_of(p: &Path) -> String {
         || p.display().to_string(),
         |n| n.to_string_lossy().into_owned(),
     )
+}
+
+/// A `--seen-from` value: `X,Y,Z` (camera) or `X,Y,Z:X,Y,Z` (camera:projector).
+fn parse_viewpoint(s: &str) -> Result<Viewpoint> {
+    let point = |p: &str| -> Result<[f64; 3]> {
+        let v: Vec<f64> = p
+            .split(',')
+            .map(|x| x.trim().parse::<f64>())
+            .collect::<std::result::Result<_, _>>()
+            .map_err(|_| {
+                anyhow::anyhow!("--seen-from {s:?}: `{p}` is not three numbers X,Y,Z (mm)")
+            })?;
+        match v[..] {
+            [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([x, y, z]),
+            _ => bail!("--seen-from {s:?}: `{p}` is not three finite numbers X,Y,Z (mm)"),
+        }
+    };
+    match s.split_once(':') {
+        None => Ok(Viewpoint {
+            camera: point(s)?,
+            projector: None,
+        }),
+        Some((c, p)) => Ok(Viewpoint {
+            camera: point(c)?,
+            projector: Some(point(p)?),
+        }),
+    }
+}
+
+/// The inspected surface made of the STEP faces named by `entities` (`#17` or `17`).
+fn faces_surface(model: &step::CadModel, entities: &[String]) -> Result<InspectedSurface> {
+    let mut wanted = Vec::new();
+    for e in entities {
+        let n: u32 = e.trim().trim_start_matches('#').parse().map_err(|_| {
+            anyhow::anyhow!("--faces: `{e}` is not a STEP entity number such as #17")
+        })?;
+        let Some(index) = model.faces.iter().position(|f| f.entity == n) else {
+            let mut known: Vec<String> = model
+                .faces
+                .iter()
+                .map(|f| format!("#{}", f.entity))
+                .collect();
+            known.truncate(12);
+            bail!(
+                "--faces: the model has no face #{n} (its faces are {}{})",
+                known.join(", "),
+                if model.faces.len() > 12 { ", …" } else { "" }
+            );
+        };
+        wanted.push((n, index as u32));
+    }
+    let triangles = model
+        .face_of
+        .iter()
+        .map(|f| wanted.iter().any(|(_, i)| i == f))
+        .collect();
+    let label = format!(
+        "face{} {}",
+        if wanted.len() == 1 { "" } else { "s" },
+        wanted
+            .iter()
+            .map(|(n, _)| format!("#{n}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    Ok(InspectedSurface::Faces { triangles, label })
 }

@@ -10,7 +10,7 @@ use crate::mesh::TriangleMesh;
 use crate::spatial::KdTree;
 
 /// Samples of the CAD surface used to estimate the coverage.
-const SAMPLES: usize = 20_000;
+pub(crate) const SAMPLES: usize = 20_000;
 
 /// Measured coverage of the CAD surface.
 #[derive(Clone, Debug, Serialize)]
@@ -21,12 +21,16 @@ pub struct Coverage {
     pub minimum: f64,
     /// Neighbourhood radius, mm: a few point spacings of the cloud.
     pub radius_mm: f64,
-    /// CAD surface area, mm².
+    /// Area of the inspected surface, mm².
     pub cad_area_mm2: f64,
+    /// The surface the fraction is of, in words (the whole CAD, named faces, what the sensors
+    /// can see).
+    pub surface: String,
 }
 
-/// Area-uniform samples of the mesh surface (fixed seed, so a report is reproducible).
-pub(crate) fn surface_samples(mesh: &TriangleMesh, n: usize) -> (Vec<[f64; 3]>, f64) {
+/// Area-uniform samples of the mesh surface with their triangles (fixed seed, so a report is
+/// reproducible), and the area.
+pub(crate) fn surface_samples(mesh: &TriangleMesh, n: usize) -> (Vec<([f64; 3], u32)>, f64) {
     let mut cumulative = Vec::with_capacity(mesh.triangles.len());
     let mut total = 0.0;
     for t in 0..mesh.triangles.len() {
@@ -52,7 +56,7 @@ pub(crate) fn surface_samples(mesh: &TriangleMesh, n: usize) -> (Vec<[f64; 3]>, 
             if u + v > 1.0 {
                 (u, v) = (1.0 - u, 1.0 - v);
             }
-            (a + (b - a) * u + (c - a) * v).into()
+            ((a + (b - a) * u + (c - a) * v).into(), t as u32)
         })
         .collect();
     (samples, total)
@@ -63,12 +67,31 @@ pub(crate) fn surface_samples(mesh: &TriangleMesh, n: usize) -> (Vec<[f64; 3]>, 
 /// points (at least 1 mm).
 pub fn coverage(mesh: &TriangleMesh, points: &[[f64; 3]], minimum: f64) -> Coverage {
     let (samples, area) = surface_samples(mesh, SAMPLES);
+    let samples: Vec<[f64; 3]> = samples.into_iter().map(|(p, _)| p).collect();
+    coverage_of(
+        &samples,
+        area,
+        points,
+        minimum,
+        "the whole CAD surface".into(),
+    )
+}
+
+/// Coverage of the surface that `samples` (area-uniform over it) stand for, of `area` mm².
+pub(crate) fn coverage_of(
+    samples: &[[f64; 3]],
+    area: f64,
+    points: &[[f64; 3]],
+    minimum: f64,
+    surface: String,
+) -> Coverage {
     if points.len() < 2 || samples.is_empty() {
         return Coverage {
             fraction: 0.0,
             minimum,
             radius_mm: 0.0,
             cad_area_mm2: area,
+            surface,
         };
     }
     let tree = KdTree::new(points);
@@ -99,6 +122,7 @@ pub fn coverage(mesh: &TriangleMesh, points: &[[f64; 3]], minimum: f64) -> Cover
         minimum,
         radius_mm: radius,
         cad_area_mm2: area,
+        surface,
     }
 }
 

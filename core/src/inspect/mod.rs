@@ -23,6 +23,7 @@ mod output;
 mod regions;
 mod report;
 mod stability;
+mod surface;
 
 pub use alignment::Alignment;
 pub use canvas::Label;
@@ -40,6 +41,7 @@ pub use output::{
 pub use regions::{out_of_tolerance_regions, Region};
 pub use report::{DatumResidual, Report, Statistics, NOT_MEASURED};
 pub use stability::Stability;
+pub use surface::{seen, InspectedSurface, Viewpoint, GRAZING_LIMIT_DEG};
 
 use nalgebra::{Matrix6, Point3, UnitQuaternion, Vector3, Vector6};
 use rayon::prelude::*;
@@ -72,6 +74,8 @@ pub struct InspectParams {
     pub min_coverage: f64,
     /// Minimum points in each datum region for a verdict.
     pub min_datum_points: usize,
+    /// The part of the CAD that coverage and the verdict are about.
+    pub surface: InspectedSurface,
 }
 
 impl Default for InspectParams {
@@ -85,6 +89,7 @@ impl Default for InspectParams {
             fit_points: 50_000,
             min_coverage: 0.5,
             min_datum_points: 10,
+            surface: InspectedSurface::Whole,
         }
     }
 }
@@ -143,6 +148,7 @@ pub fn inspect(
             format!("{} must be positive", params.tolerance),
         ));
     }
+    params.surface.triangle_mask(cad.mesh())?;
     if !params.fit_pose {
         let pose = params.init.ok_or_else(|| {
             Error::invalid(
@@ -186,8 +192,8 @@ pub fn inspect(
         datum_fit(&fit, cad, start, params)
     };
     let points = to_cad(cloud, &pose);
-    let deviations = cad.deviations(&points);
-    let (coverage, near) = surface_coverage(&points, &deviations, cad, params);
+    let (deviations, outside) = inspected_deviations(&points, cad, params);
+    let (coverage, near) = surface_coverage(&points, &deviations, cad, params, &pose);
     // What the fit used: the datum regions when the part has datums, else the surface; a
     // datum frame states its own.
     let conditioning = match frame_conditioning {
@@ -217,6 +223,7 @@ pub fn inspect(
         coverage,
         non_finite,
     );
+    count_outside(&mut report, outside);
     report.warnings.extend(frame_warning);
     tracing::info!(verdict = %report.verdict, rms = report.statistics.rms, mode, "inspected");
     Ok(Inspection {
@@ -234,6 +241,7 @@ fn surface_coverage(
     deviations: &[f64],
     cad: &SignedDistance,
     params: &InspectParams,
+    pose: &Pose,
 ) -> (coverage::Coverage, f64) {
     let near = (20.0 * params.tolerance).max(10.0);
     let on_surface: Vec<[f64; 3]> = points
@@ -243,10 +251,71 @@ fn surface_coverage(
         .filter(|(_, d)| d.abs() <= near)
         .map(|(p, _)| *p)
         .collect();
+    let (samples, area) = coverage::surface_samples(cad.mesh(), coverage::SAMPLES);
+    let total = samples.len().max(1) as f64;
+    let keep: Vec<bool> = match &params.surface {
+        InspectedSurface::Whole => vec![true; samples.len()],
+        InspectedSurface::Faces { triangles, .. } => samples
+            .iter()
+            .map(|(_, t)| triangles[*t as usize])
+            .collect(),
+        InspectedSurface::SeenFrom(views) => {
+            // the sensors' centres move with the cloud into the CAD's frame
+            let moved: Vec<Viewpoint> = views
+                .iter()
+                .map(|v| Viewpoint {
+                    camera: (pose * Point3::from(v.camera)).coords.into(),
+                    projector: v.projector.map(|p| (pose * Point3::from(p)).coords.into()),
+                })
+                .collect();
+            surface::seen(cad.bvh(), &samples, &moved)
+        }
+    };
+    let inspected: Vec<[f64; 3]> = samples
+        .iter()
+        .zip(&keep)
+        .filter(|(_, k)| **k)
+        .map(|((p, _), _)| *p)
+        .collect();
+    let share = inspected.len() as f64 / total;
     (
-        coverage::coverage(cad.mesh(), &on_surface, params.min_coverage),
+        coverage::coverage_of(
+            &inspected,
+            area * share,
+            &on_surface,
+            params.min_coverage,
+            params.surface.describe(),
+        ),
         near,
     )
+}
+
+/// The deviations of `points` (CAD frame), NaN beyond the CAD's open boundary and, with named
+/// faces, where the closest CAD triangle is not one of theirs; and how many the faces left out.
+fn inspected_deviations(
+    points: &[[f64; 3]],
+    cad: &SignedDistance,
+    params: &InspectParams,
+) -> (Vec<f64>, usize) {
+    match &params.surface {
+        InspectedSurface::Faces { triangles, .. } => {
+            let d = cad.deviations_on(points, triangles);
+            let all = cad.deviations(points);
+            let outside = d
+                .iter()
+                .zip(&all)
+                .filter(|(a, b)| a.is_nan() && !b.is_nan())
+                .count();
+            (d, outside)
+        }
+        _ => (cad.deviations(points), 0),
+    }
+}
+
+/// Points left out as closest to a face that is not inspected are not "beyond the CAD".
+fn count_outside(report: &mut Report, outside: usize) {
+    report.statistics.beyond_cad -= outside.min(report.statistics.beyond_cad);
+    report.statistics.outside_inspected = outside;
 }
 
 /// The inspection at a known pose: the deviations of every point where `pose` puts it, the
@@ -259,9 +328,9 @@ fn known_pose(
     non_finite: usize,
 ) -> Inspection {
     let points = to_cad(cloud, &pose);
-    let deviations = cad.deviations(&points);
-    let (coverage, _) = surface_coverage(&points, &deviations, cad, params);
-    let report = report::build(
+    let (deviations, outside) = inspected_deviations(&points, cad, params);
+    let (coverage, _) = surface_coverage(&points, &deviations, cad, params, &pose);
+    let mut report = report::build(
         &points,
         &deviations,
         &pose,
@@ -278,6 +347,7 @@ fn known_pose(
         coverage,
         non_finite,
     );
+    count_outside(&mut report, outside);
     tracing::debug!(verdict = %report.verdict, rms = report.statistics.rms, "inspected at a known pose");
     Inspection {
         points,

@@ -34,6 +34,9 @@ pub struct Statistics {
     pub beyond_cad: usize,
     /// Input points with a NaN or infinite coordinate, left out.
     pub non_finite: usize,
+    /// Points closest to a CAD face outside the inspected surface, left out of the statistics
+    /// and the verdict.
+    pub outside_inspected: usize,
 }
 
 /// How well a datum region sits on its nominal surface.
@@ -152,6 +155,7 @@ pub(super) fn build(
         within_tolerance: sorted.iter().filter(|d| d.abs() <= tol).count() as f64 / n,
         beyond_cad,
         non_finite,
+        outside_inspected: 0,
     };
     let mut reasons = Vec::new();
     let mut unmeasured = Vec::new();
@@ -160,9 +164,15 @@ pub(super) fn build(
     }
     if coverage.fraction < coverage.minimum {
         unmeasured.push(format!(
-            "only {:.1} % of the CAD surface was measured (minimum {:.1} %)",
+            "only {:.1} % of {} was measured (minimum {:.1} %){}",
             100.0 * coverage.fraction,
-            100.0 * coverage.minimum
+            coverage.surface,
+            100.0 * coverage.minimum,
+            if matches!(params.surface, super::InspectedSurface::Whole) {
+                ": if the cell cannot see the whole part, name the inspected faces or the sensors' viewpoints"
+            } else {
+                ""
+            }
         ));
     }
     let (unpinned, mut warnings) = fit

@@ -146,6 +146,20 @@ impl SignedDistance {
         })
     }
 
+    /// [`SignedDistance::deviations`], and NaN where the closest triangle is not in `mask`
+    /// (per triangle: the inspected faces).
+    pub fn deviations_on(&self, points: &[[f64; 3]], mask: &[bool]) -> Vec<f64> {
+        self.map_closest(points, |c| {
+            c.filter(|c| !c.beyond_boundary && mask.get(c.triangle as usize) == Some(&true))
+                .map_or(f64::NAN, |c| c.distance)
+        })
+    }
+
+    /// The bounding-volume hierarchy over the mesh (ray casts).
+    pub fn bvh(&self) -> &Bvh {
+        &self.bvh
+    }
+
     /// `f` of every point's closest point, in parallel over runs of consecutive points, each
     /// query starting from the previous point's triangle (clouds are stored in scan order, so
     /// neighbours in the list are neighbours on the surface).

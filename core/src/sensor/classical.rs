@@ -14,6 +14,11 @@ pub struct Classical {
 }
 
 impl Classical {
+    /// The projector's optical centre in the sensor frame, mm.
+    pub fn projector_centre(&self) -> Vec3 {
+        self.op
+    }
+
     /// Geometry from both devices' calibrations.
     pub fn new(camera: &Pinhole, projector: &Pinhole) -> Self {
         Classical {

@@ -92,6 +92,16 @@ impl Reconstructor {
         Reconstructor::with_reference(sensor, choice, reference.as_ref())
     }
 
+    /// Where the sensor looks from: its camera's and its projector's optical centres in the
+    /// sensor frame, mm.
+    pub fn centres(&self) -> (Vec3, Vec3) {
+        let projector = match &self.model {
+            Model::Parallax { geometry, .. } => geometry.projector_centre(),
+            Model::Classical(c) => c.projector_centre(),
+        };
+        (self.camera.center(), projector)
+    }
+
     /// Whether `choice` gives the parallax model for `sensor`.
     pub fn uses_parallax(sensor: &Sensor, choice: ModelChoice) -> bool {
         match choice {

@@ -67,6 +67,11 @@ fn epipolar_line(oc: &Vec3, op: &Vec3, d: &Vec3) -> Option<(Vec3, f64, f64)> {
 }
 
 impl Parallax {
+    /// The projector's optical centre in the sensor frame, mm.
+    pub fn projector_centre(&self) -> Vec3 {
+        self.op
+    }
+
     /// Geometry from the camera, the projector centre and the fitted reference.
     pub fn new(camera: &Pinhole, projector_center: Vec3, map: PlaneCodeMap) -> Self {
         Parallax {

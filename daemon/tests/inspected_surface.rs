@@ -1,0 +1,167 @@
+//! The inspected surface in risd (issue 42 item 2): a closed block whose top is the wear cell's
+//! plate, scanned from above by one sensor. Over the whole closed CAD the scan is NOT MEASURED
+//! (its bottom and sides are never seen); with `inspected = "seen"` the surface is what the
+//! scanning sensor's camera and projector see, the coverage counts over it and the block gets a
+//! verdict, and report.json says which surface the coverage is of. `faces` needs a STEP model
+//! and names a face the model has, or the configuration is refused.
+
+use std::io::Write as _;
+use std::path::Path;
+
+use ris_daemon::cell::{Cell, ScanJob};
+use ris_daemon::config::CellConfig;
+
+/// A closed box (outward triangles) as ASCII STL.
+fn box_stl(lo: [f64; 3], hi: [f64; 3]) -> String {
+    let c = |i: usize| {
+        [
+            if i & 1 == 0 { lo[0] } else { hi[0] },
+            if i & 2 == 0 { lo[1] } else { hi[1] },
+            if i & 4 == 0 { lo[2] } else { hi[2] },
+        ]
+    };
+    // quads counter-clockwise seen from outside
+    let quads = [
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+    ];
+    let mut s = String::from("solid block\n");
+    for q in quads {
+        for t in [[q[0], q[1], q[2]], [q[0], q[2], q[3]]] {
+            s.push_str("facet normal 0 0 0\nouter loop\n");
+            for v in t {
+                let p = c(v);
+                s.push_str(&format!("vertex {} {} {}\n", p[0], p[1], p[2]));
+            }
+            s.push_str("endloop\nendfacet\n");
+        }
+    }
+    s.push_str("endsolid block\n");
+    s
+}
+
+#[test]
+fn a_one_sided_scan_of_a_closed_block_gets_a_verdict_over_what_the_sensor_sees() {
+    let dir = tempfile::tempdir().expect("tmp");
+    // the plate's top is z = 3 (config/wear-cell/s1.toml); the block reaches 40 mm below it
+    std::fs::File::create(dir.path().join("block.stl"))
+        .and_then(|mut f| {
+            f.write_all(box_stl([-450.0, -350.0, -37.0], [450.0, 350.0, 3.0]).as_bytes())
+        })
+        .expect("block.stl");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/wear-cell/s1.toml");
+    let text = format!(
+        "[cell]\nname = \"surface\"\n[[sensor]]\nname = \"s1\"\nbackend = \"mock\"\nscene = {:?}\n\
+         to_common = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]\n\
+         [[part]]\nid = \"whole\"\ncad = \"block.stl\"\ntolerance = 0.3\npose = \"known\"\n\
+         [[part]]\nid = \"seen\"\ncad = \"block.stl\"\ntolerance = 0.3\npose = \"known\"\ninspected = \"seen\"\n",
+        scene.display().to_string()
+    );
+    let config = CellConfig::parse(&text, dir.path(), "test cell").expect("config");
+    config.check_files().expect("files");
+    let mut cell = Cell::prepare(&config, 5, &|_, _, _| {}).expect("cell");
+    let data = tempfile::tempdir().expect("tmp");
+    let mut scan = |part: usize, id: &str| {
+        let job = ScanJob {
+            part: Some(part),
+            ..ScanJob::default()
+        };
+        let (report, dir) = cell
+            .scan(&job, data.path(), id, &|| false, &|_| {})
+            .expect("scan");
+        let json: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.join("report.json")).expect("report.json"),
+        )
+        .expect("json");
+        (report.inspection.expect("inspected"), json)
+    };
+    let (whole, whole_json) = scan(0, "whole");
+    assert_eq!(whole.verdict, "not_measured", "{:?}", whole.reasons);
+    let fraction = whole_json["coverage"]["fraction"]
+        .as_f64()
+        .expect("fraction");
+    assert!(fraction < 0.5, "{fraction}");
+    assert!(
+        whole
+            .reasons
+            .iter()
+            .any(|r| r.contains("name the inspected faces")),
+        "{:?}",
+        whole.reasons
+    );
+
+    let (seen, seen_json) = scan(1, "seen");
+    assert_eq!(seen.verdict, "pass", "{:?}", seen.reasons);
+    let c = &seen_json["coverage"];
+    let area = c["cad_area_mm2"].as_f64().expect("area");
+    // what the sensor sees of the block is its top, 900 x 700 mm (the sides face away from
+    // it, the bottom is hidden): within the sampling's 2 %
+    assert!(
+        (area - 900.0 * 700.0).abs() < 0.02 * 900.0 * 700.0,
+        "inspected area {area} mm²"
+    );
+    let fraction = c["fraction"].as_f64().expect("fraction");
+    assert!(fraction > 0.5, "{c}");
+    assert!(
+        c["surface"]
+            .as_str()
+            .is_some_and(|s| s.contains("1 sensor can see")),
+        "{c}"
+    );
+    // the same points, a larger share: the whole-CAD fraction times the area ratio
+    let whole_area = whole_json["coverage"]["cad_area_mm2"]
+        .as_f64()
+        .expect("area");
+    let expected = whole_json["coverage"]["fraction"].as_f64().expect("f") * whole_area / area;
+    assert!(
+        (fraction - expected).abs() < 0.03,
+        "{fraction} against {expected}"
+    );
+    eprintln!(
+        "whole CAD: {:.1} % of {whole_area:.0} mm², not measured; seen: {:.1} % of {area:.0} mm², {}",
+        100.0 * whole_json["coverage"]["fraction"].as_f64().unwrap_or(0.0),
+        100.0 * fraction,
+        seen.verdict
+    );
+}
+
+#[test]
+fn faces_need_a_step_model_that_has_them() {
+    let dir = tempfile::tempdir().expect("tmp");
+    std::fs::write(
+        dir.path().join("block.stl"),
+        box_stl([0.0, 0.0, 0.0], [10.0, 10.0, 10.0]),
+    )
+    .expect("stl");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/wear-cell/s1.toml");
+    let config = |part: &str| {
+        format!(
+            "[cell]\nname = \"surface\"\n[[sensor]]\nname = \"s1\"\nbackend = \"mock\"\nscene = {:?}\n\
+             to_common = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]\n\
+             [[part]]\nid = \"p\"\ntolerance = 0.3\n{part}\n",
+            scene.display().to_string()
+        )
+    };
+    // faces and seen together: refused by field
+    let err = CellConfig::parse(
+        &config("cad = \"block.stl\"\nfaces = [17]\ninspected = \"seen\""),
+        dir.path(),
+        "test cell",
+    )
+    .expect_err("both")
+    .to_string();
+    assert!(err.contains("faces"), "{err}");
+    // faces of an STL: no faces to name
+    let c = CellConfig::parse(
+        &config("cad = \"block.stl\"\nfaces = [17]"),
+        dir.path(),
+        "test cell",
+    )
+    .expect("parses");
+    let err = format!("{:#}", c.check_files().expect_err("an STL has no faces"));
+    assert!(err.contains("STEP"), "{err}");
+}

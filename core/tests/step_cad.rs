@@ -441,6 +441,7 @@ fn one_sided_scans_of_closed_parts_are_measured_over_the_surface_the_cell_sees()
         let view = Viewpoint {
             camera: to_cloud(&camera.into()),
             projector: Some(to_cloud(&projector.into())),
+            image: None,
         };
         let cad = SignedDistance::new(model.mesh.clone());
         let run = |cloud: &[[f64; 3]], surface: InspectedSurface| {

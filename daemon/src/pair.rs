@@ -61,7 +61,18 @@ impl Pair {
     /// that a part's inspected surface can be what the scan could see; `None` for an omni
     /// sensor.
     pub fn viewpoint(&self) -> Option<ris_core::inspect::Viewpoint> {
-        let (camera, projector) = self.reconstructor.as_ref()?.centres();
+        let reconstructor = self.reconstructor.as_ref()?;
+        let (camera, projector) = reconstructor.centres();
+        // the camera with the cell frame as its world: X_cam = R (to_common⁻¹ X_cell) + t
+        let inverse = self.to_common.try_inverse()?;
+        let rotation = inverse.fixed_view::<3, 3>(0, 0).into_owned();
+        let shift = inverse.fixed_view::<3, 1>(0, 3).into_owned();
+        let cam = reconstructor.camera();
+        let image = ris_core::geometry::Pinhole {
+            r: cam.r * rotation,
+            t: cam.r * shift + cam.t,
+            ..cam.clone()
+        };
         let cell = |v: ris_core::geometry::Vec3| -> [f64; 3] {
             let h = self.to_common * nalgebra::Vector4::new(v.x, v.y, v.z, 1.0);
             [h.x, h.y, h.z]
@@ -69,6 +80,7 @@ impl Pair {
         Some(ris_core::inspect::Viewpoint {
             camera: cell(camera),
             projector: Some(cell(projector)),
+            image: Some(image),
         })
     }
     /// The camera's and the projector's ids.

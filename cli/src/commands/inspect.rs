@@ -258,10 +258,12 @@ fn parse_viewpoint(s: &str) -> Result<Viewpoint> {
         None => Ok(Viewpoint {
             camera: point(s)?,
             projector: None,
+            image: None,
         }),
         Some((c, p)) => Ok(Viewpoint {
             camera: point(c)?,
             projector: Some(point(p)?),
+            image: None,
         }),
     }
 }

@@ -261,13 +261,7 @@ fn surface_coverage(
             .collect(),
         InspectedSurface::SeenFrom(views) => {
             // the sensors' centres move with the cloud into the CAD's frame
-            let moved: Vec<Viewpoint> = views
-                .iter()
-                .map(|v| Viewpoint {
-                    camera: (pose * Point3::from(v.camera)).coords.into(),
-                    projector: v.projector.map(|p| (pose * Point3::from(p)).coords.into()),
-                })
-                .collect();
+            let moved: Vec<Viewpoint> = views.iter().map(|v| v.moved(pose)).collect();
             surface::seen(cad.bvh(), &samples, &moved)
         }
     };

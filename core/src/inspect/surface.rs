@@ -3,11 +3,12 @@
 //! deep pocket are never measured, so "measured 34 % of the CAD" says nothing about whether the
 //! inspection is complete. The part file names the inspected faces (STEP face entity numbers),
 //! or the cell's sensors say what they can see: a surface point counts when, from at least one
-//! sensor, the camera and the projector both see it unoccluded and within the grazing limit.
+//! sensor, the camera and the projector both see it unoccluded and within the grazing limit, and
+//! it lies inside the camera's image when the camera's model is known.
 
 use rayon::prelude::*;
 
-use crate::geometry::Vec3;
+use crate::geometry::{Pinhole, Vec3};
 use crate::mesh::{Bvh, TriangleMesh};
 
 /// Largest angle between a surface normal and the direction to a camera or projector for the
@@ -15,13 +16,38 @@ use crate::mesh::{Bvh, TriangleMesh};
 pub const GRAZING_LIMIT_DEG: f64 = 80.0;
 
 /// Where one sensor looks from: its camera's and (for structured light) its projector's
-/// centre, in the cloud's frame, mm.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// centre, in the cloud's frame, mm, and the camera's model when it is known.
+#[derive(Clone, Debug, PartialEq)]
 pub struct Viewpoint {
     /// Camera centre.
     pub camera: [f64; 3],
     /// Projector centre (`None`: a point where only the camera must see the surface).
     pub projector: Option<[f64; 3]>,
+    /// The camera with the cloud's frame as its world frame: a surface point outside its image
+    /// is not seen (`None`: only the centres count).
+    pub image: Option<Pinhole>,
+}
+
+impl Viewpoint {
+    /// This viewpoint after the rigid motion `pose` (the cloud moved into the CAD's frame).
+    pub fn moved(&self, pose: &crate::register::Pose) -> Viewpoint {
+        let at = |p: [f64; 3]| -> [f64; 3] { (pose * nalgebra::Point3::from(p)).coords.into() };
+        let image = self.image.as_ref().map(|cam| {
+            // X_cam = R X_cloud + t and X_cloud = pose⁻¹ X_cad
+            let inv = pose.inverse();
+            let r = inv.rotation.to_rotation_matrix().into_inner();
+            Pinhole {
+                r: cam.r * r,
+                t: cam.r * inv.translation.vector + cam.t,
+                ..cam.clone()
+            }
+        });
+        Viewpoint {
+            camera: at(self.camera),
+            projector: self.projector.map(at),
+            image,
+        }
+    }
 }
 
 /// Which part of the CAD surface an inspection is about.
@@ -49,9 +75,14 @@ impl InspectedSurface {
             InspectedSurface::Whole => "the whole CAD surface".into(),
             InspectedSurface::Faces { label, .. } => label.clone(),
             InspectedSurface::SeenFrom(v) => format!(
-                "the CAD surface the cell's {} sensor{} can see (camera and projector both, within {GRAZING_LIMIT_DEG}° of the normal)",
+                "the CAD surface the cell's {} sensor{} can see (camera and projector both, within {GRAZING_LIMIT_DEG}° of the normal{})",
                 v.len(),
-                if v.len() == 1 { "" } else { "s" }
+                if v.len() == 1 { "" } else { "s" },
+                if v.iter().all(|v| v.image.is_some()) {
+                    ", inside the camera's image"
+                } else {
+                    ""
+                }
             ),
         }
     }
@@ -87,7 +118,8 @@ impl InspectedSurface {
 
 /// Whether each surface sample (a point on the CAD and its triangle) is seen from at least one
 /// viewpoint (CAD frame): every centre of that viewpoint in front of the sample's triangle within
-/// [`GRAZING_LIMIT_DEG`] and no CAD triangle in between.
+/// [`GRAZING_LIMIT_DEG`], no CAD triangle in between, and the sample inside the camera's image
+/// where the camera's model is given.
 pub fn seen(bvh: &Bvh, samples: &[([f64; 3], u32)], viewpoints: &[Viewpoint]) -> Vec<bool> {
     let mesh = bvh.mesh();
     let (lo, hi) = bvh.bounds();
@@ -106,15 +138,22 @@ pub fn seen(bvh: &Bvh, samples: &[([f64; 3], u32)], viewpoints: &[Viewpoint]) ->
             let p = Vec3::from(*p);
             let origin = p + n * (1e-6 * scale);
             viewpoints.iter().any(|v| {
-                std::iter::once(v.camera).chain(v.projector).all(|centre| {
-                    let to = Vec3::from(centre) - origin;
-                    let dist = to.norm();
-                    if dist == 0.0 {
-                        return false;
-                    }
-                    let dir = to / dist;
-                    n.dot(&dir) > cos_limit && bvh.intersect(&origin, &dir, 0.0, dist).is_none()
-                })
+                let in_image = v.image.as_ref().is_none_or(|cam| {
+                    cam.project(&p).is_some_and(|(u, w)| {
+                        (-0.5..f64::from(cam.width) - 0.5).contains(&u)
+                            && (-0.5..f64::from(cam.height) - 0.5).contains(&w)
+                    })
+                });
+                in_image
+                    && std::iter::once(v.camera).chain(v.projector).all(|centre| {
+                        let to = Vec3::from(centre) - origin;
+                        let dist = to.norm();
+                        if dist == 0.0 {
+                            return false;
+                        }
+                        let dir = to / dist;
+                        n.dot(&dir) > cos_limit && bvh.intersect(&origin, &dir, 0.0, dist).is_none()
+                    })
             })
         })
         .collect()
@@ -165,6 +204,7 @@ mod tests {
         let above = Viewpoint {
             camera: [50.0, 50.0, 1000.0],
             projector: Some([250.0, 50.0, 1000.0]),
+            image: None,
         };
         let s = seen(&bvh, &[top, bottom, side], &[above]);
         assert_eq!(s, vec![true, false, false]);
@@ -172,6 +212,7 @@ mod tests {
         let oblique = Viewpoint {
             camera: [50.0, -800.0, 600.0],
             projector: None,
+            image: None,
         };
         assert_eq!(
             seen(&bvh, &[top, bottom, side], &[oblique]),
@@ -181,7 +222,48 @@ mod tests {
         let hidden_projector = Viewpoint {
             camera: [50.0, 50.0, 1000.0],
             projector: Some([50.0, 50.0, 50.0]),
+            image: None,
         };
         assert_eq!(seen(&bvh, &[top], &[hidden_projector]), vec![false]);
+        // a camera looking straight down with a narrow image: the top's centre is in it, a
+        // point of the top near its corner is not
+        let camera = Pinhole {
+            width: 100,
+            height: 100,
+            k: crate::geometry::Mat3::new(1000.0, 0.0, 49.5, 0.0, 1000.0, 49.5, 0.0, 0.0, 1.0),
+            dist: Default::default(),
+            r: crate::geometry::Mat3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0),
+            t: Vec3::new(-50.0, 50.0, 1000.0),
+        };
+        assert!((camera.center() - Vec3::new(50.0, 50.0, 1000.0)).norm() < 1e-9);
+        let narrow = Viewpoint {
+            camera: [50.0, 50.0, 1000.0],
+            projector: None,
+            image: Some(camera),
+        };
+        let corner = ([99.0, 99.0, 100.0], 2);
+        assert_eq!(
+            seen(&bvh, &[top, corner], std::slice::from_ref(&narrow)),
+            vec![true, false]
+        );
+        // moved with the cloud: the same answer in the moved frame
+        let pose = crate::register::Pose::from_parts(
+            nalgebra::Translation3::new(10.0, -20.0, 30.0),
+            nalgebra::UnitQuaternion::from_euler_angles(0.1, -0.2, 0.3),
+        );
+        let moved_mesh = {
+            let mut m = cube(100.0);
+            for v in &mut m.vertices {
+                *v = (pose * nalgebra::Point3::from(*v)).coords;
+            }
+            m
+        };
+        let at = |p: [f64; 3]| -> [f64; 3] { (pose * nalgebra::Point3::from(p)).coords.into() };
+        let moved = seen(
+            &Bvh::new(moved_mesh),
+            &[(at(top.0), top.1), (at(corner.0), corner.1)],
+            &[narrow.moved(&pose)],
+        );
+        assert_eq!(moved, vec![true, false]);
     }
 }

@@ -34,8 +34,10 @@ pub struct InspectCommand {
     pub min_coverage: f64,
     /// The pose when it is known, so nothing is searched or fitted: `known` (the cloud is in
     /// the CAD's frame already) or a transform file (TOML `matrix`, cad_from_cloud, as
-    /// `ris register` writes it). Without it the pose is found.
-    #[arg(long, value_name = "known|FILE")]
+    /// `ris register` writes it); `nominal`: the cloud is near the CAD's frame (a cell's merged
+    /// cloud, whose calibration puts the part at its nominal pose) and the fit starts there, as
+    /// risd's does. Without it the pose is searched from the data alone.
+    #[arg(long, value_name = "known|nominal|FILE")]
     pub pose: Option<String>,
     /// The inspected surface as STEP faces: their entity numbers (`#17,#137` or `17,137`, as
     /// the file and a CAD system's face picker give them). Coverage and the verdict count over
@@ -63,9 +65,10 @@ pub fn command(cmd: &InspectCommand) -> Result<Report> {
         cmd.faces.is_empty() || cmd.seen_from.is_empty(),
         "give the inspected surface either as --faces or as --seen-from, not both"
     );
+    let nominal = cmd.pose.as_deref() == Some("nominal");
     let known = match cmd.pose.as_deref() {
         None => None,
-        Some("known") => Some(ris_core::register::Pose::identity()),
+        Some("known" | "nominal") => Some(ris_core::register::Pose::identity()),
         Some(file) => Some(
             ris_core::register::TransformFile::load(Path::new(file))
                 .with_context(|| format!("--pose: reading the transform {file}"))?,
@@ -109,7 +112,7 @@ pub fn command(cmd: &InspectCommand) -> Result<Report> {
     bar.set_message("indexing CAD");
     let sd = SignedDistance::new(mesh);
     bar.inc(1);
-    bar.set_message(if known.is_some() {
+    bar.set_message(if known.is_some() && !nominal {
         "measuring deviations"
     } else {
         "registering"
@@ -127,7 +130,7 @@ pub fn command(cmd: &InspectCommand) -> Result<Report> {
             datums: datums.clone(),
             min_coverage: cmd.min_coverage,
             init: known,
-            fit_pose: known.is_none(),
+            fit_pose: known.is_none() || nominal,
             surface,
             ..InspectParams::default()
         },

@@ -169,29 +169,8 @@ impl Part {
         }
         let model = step::read(&config.cad, &step::StepOptions::default())
             .with_context(|| format!("{} (`faces` needs a STEP model)", what()))?;
-        let mut index = Vec::new();
-        for n in &config.faces {
-            let i = model
-                .faces
-                .iter()
-                .position(|f| f.entity == *n)
-                .ok_or_else(|| {
-                    anyhow!("part {}: faces: the STEP model has no face #{n}", config.id)
-                })?;
-            index.push(i as u32);
-        }
-        let triangles = model.face_of.iter().map(|f| index.contains(f)).collect();
-        let label = format!(
-            "face{} {}",
-            if index.len() == 1 { "" } else { "s" },
-            config
-                .faces
-                .iter()
-                .map(|n| format!("#{n}"))
-                .collect::<Vec<_>>()
-                .join(", ")
-        );
-        Ok((model.mesh, InspectedSurface::Faces { triangles, label }))
+        let surface = InspectedSurface::of_faces(&model, &config.faces, &what())?;
+        Ok((model.mesh, surface))
     }
 
     /// Load the CAD model and datums of `config` and index the surface.

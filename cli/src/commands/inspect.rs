@@ -42,8 +42,8 @@ pub struct InspectCommand {
     /// The inspected surface as STEP faces: their entity numbers (`#17,#137` or `17,137`, as
     /// the file and a CAD system's face picker give them). Coverage and the verdict count over
     /// these faces only; points closest to other faces are left out.
-    #[arg(long, value_delimiter = ',', value_name = "ENTITY,...")]
-    pub faces: Vec<String>,
+    #[arg(long, value_delimiter = ',', value_name = "ENTITY,...", value_parser = parse_entity)]
+    pub faces: Vec<u32>,
     /// The inspected surface as what the scan could see: a sensor's camera centre and, after a
     /// colon, its projector's (`X,Y,Z` or `X,Y,Z:X,Y,Z`, mm, the cloud's frame); repeat for each
     /// sensor. Coverage counts over the CAD surface seen from at least one of them.
@@ -100,7 +100,7 @@ pub fn command(cmd: &InspectCommand) -> Result<Report> {
         let model = step::read(cad, &step::StepOptions::default()).with_context(|| {
             format!("reading CAD {} (--faces needs a STEP model)", cad.display())
         })?;
-        let surface = faces_surface(&model, &cmd.faces)?;
+        let surface = InspectedSurface::of_faces(&model, &cmd.faces, "--faces")?;
         (model.mesh, surface)
     };
     let datums = match cmd.datums.as_deref() {
@@ -271,41 +271,10 @@ fn parse_viewpoint(s: &str) -> Result<Viewpoint> {
     }
 }
 
-/// The inspected surface made of the STEP faces named by `entities` (`#17` or `17`).
-fn faces_surface(model: &step::CadModel, entities: &[String]) -> Result<InspectedSurface> {
-    let mut wanted = Vec::new();
-    for e in entities {
-        let n: u32 = e.trim().trim_start_matches('#').parse().map_err(|_| {
-            anyhow::anyhow!("--faces: `{e}` is not a STEP entity number such as #17")
-        })?;
-        let Some(index) = model.faces.iter().position(|f| f.entity == n) else {
-            let mut known: Vec<String> = model
-                .faces
-                .iter()
-                .map(|f| format!("#{}", f.entity))
-                .collect();
-            known.truncate(12);
-            bail!(
-                "--faces: the model has no face #{n} (its faces are {}{})",
-                known.join(", "),
-                if model.faces.len() > 12 { ", …" } else { "" }
-            );
-        };
-        wanted.push((n, index as u32));
-    }
-    let triangles = model
-        .face_of
-        .iter()
-        .map(|f| wanted.iter().any(|(_, i)| i == f))
-        .collect();
-    let label = format!(
-        "face{} {}",
-        if wanted.len() == 1 { "" } else { "s" },
-        wanted
-            .iter()
-            .map(|(n, _)| format!("#{n}"))
-            .collect::<Vec<_>>()
-            .join(", ")
-    );
-    Ok(InspectedSurface::Faces { triangles, label })
+/// A STEP entity number as a file and a CAD system's face picker give it: `#17` or `17`.
+fn parse_entity(text: &str) -> std::result::Result<u32, String> {
+    text.trim()
+        .trim_start_matches('#')
+        .parse()
+        .map_err(|_| format!("`{text}` is not a STEP entity number such as #17"))
 }

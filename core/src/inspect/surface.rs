@@ -69,6 +69,25 @@ pub enum InspectedSurface {
 }
 
 impl InspectedSurface {
+    /// The faces `#entities` of a STEP model; `ctx` names where the list came from in errors.
+    pub fn of_faces(
+        model: &crate::mesh::step::CadModel,
+        entities: &[u32],
+        ctx: &str,
+    ) -> crate::Result<InspectedSurface> {
+        let triangles = model.triangles_of(entities, ctx)?;
+        let label = format!(
+            "face{} {}",
+            if entities.len() == 1 { "" } else { "s" },
+            entities
+                .iter()
+                .map(|n| format!("#{n}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        Ok(InspectedSurface::Faces { triangles, label })
+    }
+
     /// The surface in words, for the report.
     pub fn describe(&self) -> String {
         match self {

@@ -140,6 +140,37 @@ pub struct CadModel {
     pub untriangulated: usize,
 }
 
+impl CadModel {
+    /// Index in [`CadModel::faces`] of the face whose ADVANCED_FACE is entity `#entity`.
+    pub fn face(&self, entity: u32) -> Option<usize> {
+        self.faces.iter().position(|f| f.entity == entity)
+    }
+
+    /// Per triangle of the mesh, whether it belongs to one of the faces `#entities`; `ctx`
+    /// names where the list came from in the error that names a face the model lacks.
+    pub fn triangles_of(&self, entities: &[u32], ctx: &str) -> Result<Vec<bool>> {
+        let mut index = Vec::with_capacity(entities.len());
+        for &n in entities {
+            let Some(i) = self.face(n) else {
+                let mut known: Vec<String> =
+                    self.faces.iter().map(|f| format!("#{}", f.entity)).collect();
+                let more = if known.len() > 12 { ", …" } else { "" };
+                known.truncate(12);
+                return Err(Error::invalid(
+                    ctx,
+                    "faces",
+                    format!(
+                        "the STEP model has no face #{n} (its faces are {}{more})",
+                        known.join(", ")
+                    ),
+                ));
+            };
+            index.push(i as u32);
+        }
+        Ok(self.face_of.iter().map(|f| index.contains(f)).collect())
+    }
+}
+
 /// Whether `bytes` begin like a STEP file (the ISO 10303-21 header keyword).
 pub fn looks_like(bytes: &[u8]) -> bool {
     let head = &bytes[..bytes.len().min(256)];
@@ -167,17 +198,47 @@ fn check_framing(path: &Path, options: &StepOptions) -> Result<()> {
             options.max_bytes
         )));
     }
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    if !looks_like(&bytes) {
+    // The header, the DATA keyword and the trailer are checked in a bounded buffer: OpenCASCADE
+    // reads the file next, and a copy of it here would double the memory a large model costs.
+    use std::io::{Read, Seek, SeekFrom};
+    let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut chunk = vec![0u8; 1 << 20];
+    let mut carry: Vec<u8> = Vec::new();
+    let (mut first, mut data) = (true, false);
+    loop {
+        let n = file.read(&mut chunk).map_err(|e| Error::io(path, e))?;
+        if n == 0 {
+            break;
+        }
+        let mut window = std::mem::take(&mut carry);
+        window.extend_from_slice(&chunk[..n]);
+        if first && !looks_like(&window) {
+            return Err(bad(
+                "not a STEP file: it does not begin with ISO-10303-21;".into()
+            ));
+        }
+        first = false;
+        if window.windows(5).any(|w| w == b"DATA;") {
+            data = true;
+            break;
+        }
+        carry = window[window.len().saturating_sub(4)..].to_vec();
+    }
+    if first {
         return Err(bad(
             "not a STEP file: it does not begin with ISO-10303-21;".into()
         ));
     }
-    let text = String::from_utf8_lossy(&bytes);
-    if !text.contains("DATA;") {
+    if !data {
         return Err(bad("STEP file has no DATA section".into()));
     }
-    let tail = text.trim_end();
+    let back = size.min(4096);
+    file.seek(SeekFrom::Start(size - back))
+        .map_err(|e| Error::io(path, e))?;
+    let mut tail = Vec::with_capacity(back as usize);
+    file.read_to_end(&mut tail).map_err(|e| Error::io(path, e))?;
+    let tail = String::from_utf8_lossy(&tail);
+    let tail = tail.trim_end();
     if !tail
         .get(tail.len().saturating_sub(40)..)
         .unwrap_or(tail)

@@ -2,13 +2,16 @@
 """Seeded STEP parts and their truth, written by an independent OpenCASCADE (the cadquery-ocp
 wheel, OCCT 7.8+, not Debian's 7.6 that RIS links): the test reads each part with RIS and compares.
 
-usage: step_parts.py OUT_DIR SEED COUNT
+usage: step_parts.py OUT_DIR SEED COUNT [DX DY DR]
 
 For part k it writes OUT_DIR/part_k.step (AP214) and OUT_DIR/part_k.json:
   {"faces": [{"entity": n, "kind": "plane"|"cylinder"|"cone"|"sphere"|"torus"|"other",
               "origin": [..], "axis": [..], "radius": r, "radius2": r2,
               "area": exact area (mm²), "mesh_area": area of this OCCT's own tessellation}],
    "bounds": [[lo], [hi]], "holes": [{"centre": [..], "axis": [..], "radius": r}]}
+With DX DY DR, each block is also written as built with its first hole moved by (DX, DY) mm
+across its axis and its radius grown by DR mm: OUT_DIR/part_k_actual.step, and the truth gains
+"planted": {"hole": 0, "shift": [..] (CAD frame), "radius": r}.
 Entities are the STEP entity numbers (#n) of the ADVANCED_FACEs, read back from the file by this
 OCCT. Families: a block with filleted edges (planes, cylinders, sphere corners), through holes
 (cylinders), a countersink (cone) and a turned groove on a shaft (torus), at random sizes and in a
@@ -49,8 +52,9 @@ def xyz(v):
     return [v.X(), v.Y(), v.Z()]
 
 
-def block(rng):
-    """A filleted block with through holes and one countersink."""
+def block(rng, plant=None):
+    """A filleted block with through holes and one countersink; `plant` (dx, dy, dr) moves and
+    grows the first hole."""
     lx, ly, lz = rng.uniform(60, 200), rng.uniform(40, 150), rng.uniform(10, 40)
     shape = BRepPrimAPI_MakeBox(gp_Pnt(-lx / 2, -ly / 2, 0), lx, ly, lz).Shape()
     fillet = BRepFilletAPI_MakeFillet(shape)
@@ -70,6 +74,8 @@ def block(rng):
                 holes.append((cx, cy, hr))
                 break
     for i, (cx, cy, hr) in enumerate(holes):
+        if i == 0 and plant is not None:
+            cx, cy, hr = cx + plant[0], cy + plant[1], hr + plant[2]
         tool = BRepPrimAPI_MakeCylinder(gp_Ax2(gp_Pnt(cx, cy, -1), gp_Dir(0, 0, 1)), hr,
                                         lz + 2).Shape()
         shape = BRepAlgoAPI_Cut(shape, tool).Shape()
@@ -186,13 +192,30 @@ def shell_faces(path):
 
 def main():
     out, seed, count = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+    plant = [float(v) for v in sys.argv[4:7]] if len(sys.argv) >= 7 else None
     rng = random.Random(seed)
     Interface_Static.SetCVal_s("write.step.schema", "AP214IS")
     Interface_Static.SetCVal_s("write.step.unit", "MM")
     for k in range(count):
+        state = rng.getstate()
         shape, holes = (block if k % 3 != 2 else shaft)(rng)
+        actual = None
+        if plant is not None and k % 3 != 2:
+            again = random.Random()
+            again.setstate(state)
+            actual, _ = block(again, plant)
         pose = random_pose(rng)
         shape = BRepBuilderAPI_Transform(shape, pose, True).Shape()
+        planted = None
+        if actual is not None:
+            actual = BRepBuilderAPI_Transform(actual, pose, True).Shape()
+            writer = STEPControl_Writer()
+            writer.Transfer(actual, STEPControl_AsIs)
+            if writer.Write(f"{out}/part_{k}_actual.step") != IFSelect_RetDone:
+                raise SystemExit(f"cannot write {out}/part_{k}_actual.step")
+            shift = gp_Vec(plant[0], plant[1], 0).Transformed(pose)
+            planted = {"hole": 0, "shift": [shift.X(), shift.Y(), shift.Z()],
+                       "radius": holes[0]["radius"] + plant[2]}
         for h in holes:
             p = gp_Pnt(*h["centre"]).Transformed(pose)
             d = gp_Dir(*h["axis"]).Transformed(pose)
@@ -231,7 +254,7 @@ def main():
         BRepGProp.VolumeProperties_s(back, solid)
         with open(f"{out}/part_{k}.json", "w") as f:
             json.dump({"faces": faces, "volume": solid.Mass(), "bounds": [xyz(box.CornerMin()), xyz(box.CornerMax())],
-                       "holes": holes}, f)
+                       "holes": holes, "planted": planted}, f)
 
 
 if __name__ == "__main__":

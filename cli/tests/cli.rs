@@ -2536,3 +2536,176 @@ fn verify_simulate_refuses_a_file_without_a_volume_and_a_bad_scene() {
         &out,
     );
 }
+
+/// `ris inspect --characteristics` (issue 42 item 3): a seeded STEP block built with its first
+/// hole moved 0.3 mm and grown 0.1 mm, scanned from above (rays on a 0.3 mm lattice), inspected
+/// at the known pose against the nominal STEP with ISO 1101 characteristics on its faces: the
+/// hole's position and diameter read the planted values and fail, the top face's flatness
+/// passes; the report, the text and the page carry them. A characteristics file with a mesh CAD
+/// is refused.
+#[cfg(feature = "step")]
+#[test]
+fn inspect_measures_characteristics_on_step_faces() {
+    use ris_core::geometry::Vec3;
+    use ris_core::mesh::step::{self, FaceSurface, StepOptions};
+    let dir = tempfile::tempdir().expect("tmp");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/step_parts.py");
+    let o = Command::new("python3")
+        .arg(&script)
+        .arg(dir.path())
+        .args(["41", "1", "0.3", "0", "0.1"])
+        .output()
+        .expect("python3 runs tests/step_parts.py (cadquery-ocp, installed by .ci/run)");
+    assert!(o.status.success(), "{}", stderr(&o));
+    let truth: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("part_0.json")).expect("truth"),
+    )
+    .expect("json");
+    let nominal = dir.path().join("part_0.step");
+    let model = step::read(&nominal, &StepOptions::default()).expect("nominal");
+    let built = step::read(
+        &dir.path().join("part_0_actual.step"),
+        &StepOptions::default(),
+    )
+    .expect("as built");
+    let v = |j: &serde_json::Value| {
+        Vec3::new(
+            j[0].as_f64().expect("x"),
+            j[1].as_f64().expect("y"),
+            j[2].as_f64().expect("z"),
+        )
+    };
+    let hole = &truth["holes"][0];
+    let (centre, axis, radius) = (
+        v(&hole["centre"]),
+        v(&hole["axis"]).normalize(),
+        hole["radius"].as_f64().expect("r"),
+    );
+    let face_of = |want: &dyn Fn(&FaceSurface) -> bool| {
+        model
+            .faces
+            .iter()
+            .filter(|f| want(&f.surface))
+            .max_by_key(|f| f.triangles)
+            .expect("face")
+            .entity
+    };
+    let bore = face_of(&|s| match s {
+        FaceSurface::Cylinder {
+            origin, radius: r, ..
+        } => {
+            let off = origin - centre;
+            (r - radius).abs() < 1e-6 && (off - axis * off.dot(&axis)).norm() < 1e-6
+        }
+        _ => false,
+    });
+    // the face seen from above: the plane facing along the countersunk side of the axis
+    let top =
+        face_of(&|s| matches!(s, FaceSurface::Plane { normal, .. } if normal.dot(&axis) > 0.99));
+    // rays straight down the axis on a 0.3 mm lattice over the part
+    let bvh = ris_core::mesh::Bvh::new(built.mesh.clone());
+    let e1 = axis.cross(&Vec3::new(0.3, 0.5, 0.8)).normalize();
+    let e2 = axis.cross(&e1);
+    let mut points = Vec::new();
+    for j in -800..800 {
+        for i in -800..800 {
+            let from = centre + axis * 200.0 + e1 * (0.3 * i as f64) + e2 * (0.3 * j as f64);
+            if let Some(hit) = bvh.intersect(&from, &-axis, 0.0, 1e4) {
+                if hit.normal.dot(&axis) > 0.17 {
+                    let p = from - axis * hit.t;
+                    points.push([p.x as f32, p.y as f32, p.z as f32]);
+                }
+            }
+        }
+    }
+    let cloud = dir.path().join("scan.ply");
+    ris_core::cloud::PointCloud {
+        confidence: vec![1.0; points.len()],
+        points,
+        ..Default::default()
+    }
+    .write_ply(&cloud)
+    .expect("ply");
+    let spec = dir.path().join("gdt.toml");
+    std::fs::write(
+        &spec,
+        format!(
+            "[[characteristic]]\nname = \"top\"\nkind = \"flatness\"\nfaces = [{top}]\ntolerance = 0.05\n\n\
+             [[characteristic]]\nname = \"bore\"\nkind = \"diameter\"\nfaces = [{bore}]\nlower = -0.05\nupper = 0.05\n\n\
+             [[characteristic]]\nname = \"bore\"\nkind = \"position\"\nfaces = [{bore}]\ntolerance = 0.2\n"
+        ),
+    )
+    .expect("write");
+    let out = dir.path().join("out");
+    let o = ris(&[
+        "inspect",
+        "--cloud",
+        cloud.to_str().expect("utf8"),
+        "--cad",
+        nominal.to_str().expect("utf8"),
+        "--characteristics",
+        spec.to_str().expect("utf8"),
+        "--tolerance",
+        "0.5",
+        "--min-coverage",
+        "0",
+        "--pose",
+        "known",
+        "--out",
+        out.to_str().expect("utf8"),
+    ]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert_eq!(o.status.code(), Some(3), "{text}\n{}", stderr(&o));
+    assert!(
+        text.contains("⌖ position of bore") && text.contains("OUT"),
+        "{text}"
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).expect("report"))
+            .expect("json");
+    let c = report["characteristics"]
+        .as_array()
+        .expect("characteristics");
+    let get = |kind: &str| c.iter().find(|x| x["characteristic"] == kind).expect(kind);
+    let flat = get("flatness");
+    assert!(
+        flat["measured"].as_f64().expect("flatness") < 0.02,
+        "{flat}"
+    );
+    assert_eq!(flat["in_tolerance"], true, "{flat}");
+    let d = get("diameter")["measured"].as_f64().expect("diameter");
+    assert!(
+        (d - 2.0 * (radius + 0.1)).abs() < 0.05,
+        "diameter {d} against {}",
+        2.0 * (radius + 0.1)
+    );
+    assert_eq!(get("diameter")["in_tolerance"], false);
+    let p = get("position")["measured"].as_f64().expect("position");
+    assert!((p - 0.6).abs() < 0.08, "position {p} against 0.6");
+    assert_eq!(get("position")["in_tolerance"], false);
+    let page = std::fs::read_to_string(out.join("report.html")).expect("page");
+    assert!(
+        page.contains("id=\"characteristics\""),
+        "the page has no characteristics table"
+    );
+    // a mesh CAD has no faces to name
+    let stl = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/mock-cell/panel.stl");
+    let o = ris(&[
+        "inspect",
+        "--cloud",
+        cloud.to_str().expect("utf8"),
+        "--cad",
+        stl.to_str().expect("utf8"),
+        "--characteristics",
+        spec.to_str().expect("utf8"),
+        "--tolerance",
+        "0.5",
+        "--out",
+        out.to_str().expect("utf8"),
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("--characteristics needs a STEP model"),
+        "{}",
+        stderr(&o)
+    );
+}

@@ -223,6 +223,10 @@ pub struct PartSection {
     /// their ADVANCED_FACE); needs a STEP `cad`. Points closest to other faces are left out.
     #[serde(default)]
     pub faces: Vec<u32>,
+    /// Characteristics file: ISO 1101 flatness, profile, diameter and position toleranced on
+    /// the STEP `cad`'s faces (`[[characteristic]]` tables); each is part of the verdict.
+    #[serde(default)]
+    pub characteristics: Option<PathBuf>,
 }
 
 /// Which part of a part's CAD its inspection is about.
@@ -550,6 +554,8 @@ pub struct PartConfig {
     pub inspected: PartSurface,
     /// The inspected STEP faces (entity numbers); empty: `inspected` says.
     pub faces: Vec<u32>,
+    /// Characteristics file, resolved.
+    pub characteristics: Option<PathBuf>,
 }
 
 /// A validated cell configuration, paths resolved against the file's directory.
@@ -965,6 +971,7 @@ impl CellConfig {
                 pose: p.pose,
                 inspected: p.inspected,
                 faces: p.faces.clone(),
+                characteristics: p.characteristics.as_deref().map(resolve),
             });
         }
         let mut zenoh = file.zenoh.clone();

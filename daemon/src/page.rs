@@ -213,6 +213,53 @@ fn render(
         .collect();
         table(&mut o, "statistics", &["", "value"], &rows);
 
+        if let Some(list) = r["characteristics"].as_array().filter(|a| !a.is_empty()) {
+            o.push_str("<h2>Characteristics</h2>");
+            let rows: Vec<Vec<String>> = list
+                .iter()
+                .map(|c| {
+                    vec![
+                        format!("{} {}", text(&c["symbol"]), text(&c["characteristic"])),
+                        text(&c["name"]),
+                        c["faces"].as_array().map_or("–".into(), |f| {
+                            f.iter()
+                                .map(|n| format!("#{}", num(n, 0)))
+                                .collect::<Vec<_>>()
+                                .join(", ")
+                        }),
+                        num(&c["measured"], 3),
+                        format!(
+                            "{} … {}",
+                            num(&c["lower_limit"], 3),
+                            num(&c["upper_limit"], 3)
+                        ),
+                        match c["in_tolerance"].as_bool() {
+                            Some(true) => "yes".into(),
+                            Some(false) => "no".into(),
+                            None => format!("not measured: {}", text(&c["not_measured"])),
+                        },
+                        format!("{:.0} %", 100.0 * c["coverage"].as_f64().unwrap_or(0.0)),
+                        text(&c["method"]),
+                    ]
+                })
+                .collect();
+            table(
+                &mut o,
+                "characteristics",
+                &[
+                    "characteristic",
+                    "feature",
+                    "faces",
+                    "measured, mm",
+                    "limits, mm",
+                    "in tolerance",
+                    "measured share",
+                    "how",
+                ],
+                &rows,
+            );
+        }
+
         o.push_str("<h2>Datums</h2>");
         let rows: Vec<Vec<String>> = r["datums"]
             .as_array()

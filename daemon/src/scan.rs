@@ -14,8 +14,8 @@ use ris_core::capture::CaptureSet;
 use ris_core::cloud::{Merger, PointCloud};
 use ris_core::decode::{decode, DecodeParams};
 use ris_core::inspect::{
-    inspect, load_datums, write_deviation_ply, write_deviation_png, Datum, InspectParams,
-    InspectedSurface, MapTitle,
+    inspect, load_characteristics, load_datums, write_deviation_ply, write_deviation_png,
+    Characteristic, Datum, InspectParams, InspectedSurface, MapTitle,
 };
 use ris_core::mesh::{step, SignedDistance, TriangleMesh};
 use ris_core::pattern::Pattern;
@@ -156,26 +156,47 @@ pub struct Part {
     /// each scan makes from its sensors).
     surface: InspectedSurface,
     seen: bool,
+    characteristics: Vec<Characteristic>,
 }
 
 impl Part {
-    /// The CAD of `config` and, with `faces`, the inspected surface they make (a STEP model's
-    /// faces by entity number).
-    pub fn load_cad(config: &PartConfig) -> Result<(TriangleMesh, InspectedSurface)> {
+    /// The CAD of `config`, the inspected surface its `faces` make (a STEP model's faces by
+    /// entity number) and its characteristics (on the STEP model's faces).
+    pub fn load_cad(
+        config: &PartConfig,
+    ) -> Result<(TriangleMesh, InspectedSurface, Vec<Characteristic>)> {
         let what = || format!("part {}: CAD {}", config.id, config.cad.display());
-        if config.faces.is_empty() {
+        if config.faces.is_empty() && config.characteristics.is_none() {
             let mesh = TriangleMesh::load(&config.cad).with_context(what)?;
-            return Ok((mesh, InspectedSurface::Whole));
+            return Ok((mesh, InspectedSurface::Whole, Vec::new()));
         }
-        let model = step::read(&config.cad, &step::StepOptions::default())
-            .with_context(|| format!("{} (`faces` needs a STEP model)", what()))?;
-        let surface = InspectedSurface::of_faces(&model, &config.faces, &what())?;
-        Ok((model.mesh, surface))
+        let model = step::read(&config.cad, &step::StepOptions::default()).with_context(|| {
+            format!(
+                "{} (`{}` needs a STEP model)",
+                what(),
+                if config.faces.is_empty() {
+                    "characteristics"
+                } else {
+                    "faces"
+                }
+            )
+        })?;
+        let surface = if config.faces.is_empty() {
+            InspectedSurface::Whole
+        } else {
+            InspectedSurface::of_faces(&model, &config.faces, &what())?
+        };
+        let characteristics = match &config.characteristics {
+            Some(p) => load_characteristics(p, &model)
+                .with_context(|| format!("part {}: characteristics", config.id))?,
+            None => Vec::new(),
+        };
+        Ok((model.mesh, surface, characteristics))
     }
 
     /// Load the CAD model and datums of `config` and index the surface.
     pub fn prepare(config: &PartConfig) -> Result<Part> {
-        let (mesh, surface) = Part::load_cad(config)?;
+        let (mesh, surface, characteristics) = Part::load_cad(config)?;
         let datums = match &config.datums {
             Some(d) => load_datums(d).with_context(|| format!("part {}: datums", config.id))?,
             None => Vec::new(),
@@ -189,6 +210,7 @@ impl Part {
             fit_pose: config.pose == crate::config::PartPose::Fit,
             surface,
             seen: config.inspected == PartSurface::Seen,
+            characteristics,
         })
     }
 }
@@ -782,6 +804,7 @@ fn inspect_part(
         } else {
             part.surface.clone()
         },
+        characteristics: part.characteristics.clone(),
         ..InspectParams::default()
     };
     // The inspection cannot be interrupted: while it runs (up to STAGE_DEADLINE) its state is

@@ -46,6 +46,7 @@ fn table_part(dir: &Path) -> ris_daemon::config::PartConfig {
         pose: ris_daemon::config::PartPose::Fit,
         inspected: ris_daemon::config::PartSurface::Whole,
         faces: Vec::new(),
+        characteristics: None,
     }
 }
 

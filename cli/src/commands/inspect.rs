@@ -7,8 +7,8 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use ris_core::cloud::PointCloud;
 use ris_core::inspect::{
-    inspect, load_datums, write_deviation_ply, write_deviation_png, InspectParams,
-    InspectedSurface, MapTitle, Report, Viewpoint,
+    inspect, load_characteristics, load_datums, write_deviation_ply, write_deviation_png,
+    InspectParams, InspectedSurface, MapTitle, Report, Viewpoint,
 };
 use ris_core::mesh::{step, SignedDistance, TriangleMesh};
 
@@ -26,6 +26,11 @@ pub struct InspectCommand {
     /// point, hole, slot and edge features); without them trusted regions are grown.
     #[arg(long)]
     pub datums: Option<PathBuf>,
+    /// Characteristics file: ISO 1101 flatness, profile, diameter and position toleranced on
+    /// the STEP model's faces (`[[characteristic]]` tables, docs/commands.md); each is
+    /// measured, reported and part of the verdict.
+    #[arg(long, value_name = "FILE")]
+    pub characteristics: Option<PathBuf>,
     /// Tolerance on |deviation|, mm.
     #[arg(long)]
     pub tolerance: f64,
@@ -87,21 +92,38 @@ pub fn command(cmd: &InspectCommand) -> Result<Report> {
     let outside = c.drop_outside();
     bar.inc(1);
     bar.set_message("reading CAD");
-    let (mesh, surface) = if cmd.faces.is_empty() {
+    let (mesh, surface, characteristics) = if cmd.faces.is_empty() && cmd.characteristics.is_none()
+    {
         let mesh =
             TriangleMesh::load(cad).with_context(|| format!("reading CAD {}", cad.display()))?;
-        let surface = if viewpoints.is_empty() {
-            InspectedSurface::Whole
-        } else {
-            InspectedSurface::SeenFrom(viewpoints)
-        };
-        (mesh, surface)
+        (mesh, InspectedSurface::Whole, Vec::new())
     } else {
         let model = step::read(cad, &step::StepOptions::default()).with_context(|| {
-            format!("reading CAD {} (--faces needs a STEP model)", cad.display())
+            format!(
+                "reading CAD {} ({} needs a STEP model)",
+                cad.display(),
+                if cmd.faces.is_empty() {
+                    "--characteristics"
+                } else {
+                    "--faces"
+                }
+            )
         })?;
-        let surface = InspectedSurface::of_faces(&model, &cmd.faces, "--faces")?;
-        (model.mesh, surface)
+        let surface = if cmd.faces.is_empty() {
+            InspectedSurface::Whole
+        } else {
+            InspectedSurface::of_faces(&model, &cmd.faces, "--faces")?
+        };
+        let characteristics = match cmd.characteristics.as_deref() {
+            Some(p) => load_characteristics(p, &model)
+                .with_context(|| format!("reading characteristics {}", p.display()))?,
+            None => Vec::new(),
+        };
+        (model.mesh, surface, characteristics)
+    };
+    let surface = match (surface, viewpoints.is_empty()) {
+        (InspectedSurface::Whole, false) => InspectedSurface::SeenFrom(viewpoints),
+        (s, _) => s,
     };
     let datums = match cmd.datums.as_deref() {
         Some(p) => load_datums(p).with_context(|| format!("reading datums {}", p.display()))?,
@@ -132,6 +154,7 @@ pub fn command(cmd: &InspectCommand) -> Result<Report> {
             init: known,
             fit_pose: known.is_none() || nominal,
             surface,
+            characteristics,
             ..InspectParams::default()
         },
     )
@@ -203,6 +226,30 @@ pub fn command(cmd: &InspectCommand) -> Result<Report> {
     }
     for reason in &r.report.reasons {
         println!("  - {reason}");
+    }
+    for c in &r.report.characteristics {
+        match (c.measured, &c.not_measured) {
+            (Some(v), _) => println!(
+                "  {} {} of {}: {v:.3} mm ({:.3} … {:.3}) {}",
+                c.symbol,
+                c.characteristic,
+                c.name,
+                c.lower_limit,
+                c.upper_limit,
+                if c.in_tolerance == Some(true) {
+                    "ok"
+                } else {
+                    "OUT"
+                }
+            ),
+            (None, why) => println!(
+                "  {} {} of {}: not measured: {}",
+                c.symbol,
+                c.characteristic,
+                c.name,
+                why.as_deref().unwrap_or("")
+            ),
+        }
     }
     for d in &r.report.datums {
         let Some(m) = &d.frame else { continue };

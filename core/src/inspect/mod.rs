@@ -13,6 +13,7 @@
 
 mod alignment;
 pub(crate) mod canvas;
+mod characteristics;
 mod conditioning;
 mod consensus;
 mod coverage;
@@ -27,6 +28,10 @@ mod surface;
 
 pub use alignment::Alignment;
 pub use canvas::Label;
+pub use characteristics::{
+    evaluate as evaluate_characteristics, load_characteristics, resolve as resolve_characteristics,
+    Characteristic, CharacteristicResult, CharacteristicSpec, Kind as CharacteristicKind,
+};
 pub use conditioning::{analyse as conditioning, Conditioning, Direction, UNPINNED_STRENGTH};
 pub use coverage::{coverage, Coverage};
 pub use datums::{
@@ -76,6 +81,8 @@ pub struct InspectParams {
     pub min_datum_points: usize,
     /// The part of the CAD that coverage and the verdict are about.
     pub surface: InspectedSurface,
+    /// Toleranced characteristics on the CAD's faces (ISO 1101), each in the verdict.
+    pub characteristics: Vec<Characteristic>,
 }
 
 impl Default for InspectParams {
@@ -90,6 +97,7 @@ impl Default for InspectParams {
             min_coverage: 0.5,
             min_datum_points: 10,
             surface: InspectedSurface::Whole,
+            characteristics: Vec::new(),
         }
     }
 }
@@ -224,6 +232,10 @@ pub fn inspect(
         non_finite,
     );
     count_outside(&mut report, outside);
+    report::add_characteristics(
+        &mut report,
+        characteristics::evaluate(&points, cad, &params.characteristics),
+    );
     report.warnings.extend(frame_warning);
     tracing::info!(verdict = %report.verdict, rms = report.statistics.rms, mode, "inspected");
     Ok(Inspection {
@@ -342,6 +354,10 @@ fn known_pose(
         non_finite,
     );
     count_outside(&mut report, outside);
+    report::add_characteristics(
+        &mut report,
+        characteristics::evaluate(&points, cad, &params.characteristics),
+    );
     tracing::debug!(verdict = %report.verdict, rms = report.statistics.rms, "inspected at a known pose");
     Inspection {
         points,

@@ -117,6 +117,10 @@ pub struct Report {
     pub datums: Vec<DatumResidual>,
     /// Connected regions out of tolerance (at least 20 points), largest |peak| first.
     pub regions_out_of_tolerance: Vec<Region>,
+    /// The part's toleranced characteristics (ISO 1101), in the file's order; left out when the
+    /// part has none.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub characteristics: Vec<super::CharacteristicResult>,
 }
 
 fn percentile(sorted: &[f64], q: f64) -> f64 {
@@ -268,6 +272,7 @@ pub(super) fn build(
         statistics,
         datums,
         regions_out_of_tolerance: regions,
+        characteristics: Vec::new(),
     }
 }
 
@@ -325,4 +330,39 @@ fn cell_size(points: &[[f64; 3]]) -> f64 {
     ext.sort_by(|a, b| b.total_cmp(a));
     let area = ext[0] * ext[1];
     (3.0 * (area / points.len().max(1) as f64).sqrt()).max(1.0)
+}
+
+/// Put the characteristics into the report and its verdict: one not measured makes the part
+/// not measured (its figure is missing), one out of tolerance fails it.
+pub(super) fn add_characteristics(report: &mut Report, results: Vec<super::CharacteristicResult>) {
+    let mut unmeasured = 0;
+    for r in &results {
+        let what = format!("{} {} of {}", r.symbol, r.characteristic, r.name);
+        match (r.measured, &r.not_measured) {
+            (_, Some(why)) => {
+                report
+                    .reasons
+                    .insert(unmeasured, format!("{what} was not measured: {why}"));
+                unmeasured += 1;
+                report.verdict = NOT_MEASURED.into();
+            }
+            (Some(v), None) if r.in_tolerance == Some(false) => {
+                report.reasons.push(format!(
+                    "{what} is {v:.3} mm, outside {:.3} … {:.3} mm",
+                    r.lower_limit, r.upper_limit
+                ));
+                if report.verdict == "pass" {
+                    report.verdict = "fail".into();
+                }
+            }
+            _ => {}
+        }
+    }
+    let fitted = report.registration.mode != "known pose" && report.datums.is_empty();
+    if fitted && results.iter().any(|r| r.characteristic == "position") {
+        report.warnings.push(
+            "positions are measured in the best fit of the whole surface, not in a datum reference frame: a moved feature draws the fit a little towards itself; name datums or give the cell's pose".into(),
+        );
+    }
+    report.characteristics = results;
 }

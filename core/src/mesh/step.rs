@@ -152,8 +152,11 @@ impl CadModel {
         let mut index = Vec::with_capacity(entities.len());
         for &n in entities {
             let Some(i) = self.face(n) else {
-                let mut known: Vec<String> =
-                    self.faces.iter().map(|f| format!("#{}", f.entity)).collect();
+                let mut known: Vec<String> = self
+                    .faces
+                    .iter()
+                    .map(|f| format!("#{}", f.entity))
+                    .collect();
                 let more = if known.len() > 12 { ", …" } else { "" };
                 known.truncate(12);
                 return Err(Error::invalid(
@@ -236,7 +239,8 @@ fn check_framing(path: &Path, options: &StepOptions) -> Result<()> {
     file.seek(SeekFrom::Start(size - back))
         .map_err(|e| Error::io(path, e))?;
     let mut tail = Vec::with_capacity(back as usize);
-    file.read_to_end(&mut tail).map_err(|e| Error::io(path, e))?;
+    file.read_to_end(&mut tail)
+        .map_err(|e| Error::io(path, e))?;
     let tail = String::from_utf8_lossy(&tail);
     let tail = tail.trim_end();
     if !tail

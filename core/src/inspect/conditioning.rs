@@ -101,34 +101,51 @@ impl Conditioning {
         let mut unpinned = Vec::new();
         let mut weak = Vec::new();
         for d in &self.directions {
-            let what = match d.kind.as_str() {
-                "rotation" => format!(
-                    "rotation about ({:.2}, {:.2}, {:.2})",
-                    d.axis[0], d.axis[1], d.axis[2]
-                ),
-                _ => format!(
-                    "translation along ({:.2}, {:.2}, {:.2})",
-                    d.axis[0], d.axis[1], d.axis[2]
-                ),
+            let axis = axis_in_words(d.axis);
+            let rotation = d.kind == "rotation";
+            let what = if rotation {
+                format!("the part's turn about {axis}")
+            } else {
+                format!("the part's position along {axis}")
             };
             if d.strength < UNPINNED_STRENGTH && prior {
                 weak.push(format!(
-                    "the measured surface does not pin the {what} (strength {:.1e}): the part's position along it is the initial pose's (the cell calibration's), not measured",
-                    d.strength
+                    "the measured surface does not pin {what}: it is the cell calibration's (where the fixture holds the part), not measured, so the deviations are right only if the part sat as fixtured"
                 ));
             } else if d.strength < UNPINNED_STRENGTH {
                 unpinned.push(format!(
-                    "the registration cannot pin the {what}: the measured surface does not constrain it (strength {:.1e}); add datums that fix it",
-                    d.strength
+                    "the registration cannot pin {what}: the measured surface could {} without changing its fit, so where deviations lie is not known; add datums that fix it (an edge, a hole, a slot) or give the part's pose",
+                    if rotation { "turn" } else { "slide" }
                 ));
             } else if d.slide_mm > WEAK_SLIDE_TOLERANCES * tolerance {
                 weak.push(format!(
-                    "the {what} is weakly pinned: a systematic deviation of {tolerance} mm could move the fit {:.1} mm along it",
-                    d.slide_mm
+                    "{what} is weakly pinned: a systematic deviation of {tolerance} mm could move the fit {:.1} mm{} along it, so a deviation may be shown that far from where it is",
+                    d.slide_mm,
+                    if rotation { " (at the part's RMS radius)" } else { "" }
                 ));
             }
         }
         (unpinned, weak)
+    }
+}
+
+/// A direction in words: the CAD's x, y or z axis when it lies within 8° of one, else its
+/// components in the CAD frame.
+fn axis_in_words(a: [f64; 3]) -> String {
+    let n = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt().max(1e-12);
+    let (k, c) = (0..3)
+        .map(|k| (k, a[k].abs() / n))
+        .max_by(|x, y| x.1.total_cmp(&y.1))
+        .unwrap_or((0, 0.0));
+    if c >= 8f64.to_radians().cos() {
+        format!("the CAD's {} axis", ["x", "y", "z"][k])
+    } else {
+        format!(
+            "the direction ({:.2}, {:.2}, {:.2}) of the CAD frame",
+            a[0] / n,
+            a[1] / n,
+            a[2] / n
+        )
     }
 }
 

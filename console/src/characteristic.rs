@@ -22,8 +22,9 @@ pub struct Characteristic {
 /// The characteristics `report` (a `report.json`) carries: the deviation statistics (mean,
 /// RMS, 5th and 95th percentiles, minimum, maximum) against ± tolerance, the share of points in
 /// tolerance, the coverage against its minimum, each datum's mean and 99th percentile, and the
-/// out-of-tolerance regions (count, points, largest |peak|). Figures the report lacks or gives
-/// as not finite (no point measured) are left out.
+/// out-of-tolerance regions (count, points, largest |peak|), and the part's ISO 1101
+/// characteristics (`flatness top`, `position bore A`, ...) with their limits. Figures the
+/// report lacks or gives as not finite (no point measured) are left out.
 pub fn from_report(report: &Value) -> Vec<Characteristic> {
     let tol = report["tolerance_mm"].as_f64().filter(|t| t.is_finite());
     let mut out = Vec::new();
@@ -106,12 +107,54 @@ pub fn from_report(report: &Value) -> Vec<Characteristic> {
             .fold(0.0, f64::max);
         push("largest region peak".into(), Some(peak), None, tol, "mm");
     }
+    // The part's ISO 1101 characteristics, each with its own limits (form, profile and
+    // position zones from 0; a diameter between its limit deviations); one not measured on a
+    // scan leaves a gap in its trend.
+    for c in report["characteristics"].as_array().into_iter().flatten() {
+        let (Some(name), Some(kind)) = (c["name"].as_str(), c["characteristic"].as_str()) else {
+            continue;
+        };
+        push(
+            format!("{kind} {name}"),
+            c["measured"].as_f64(),
+            c["lower_limit"].as_f64(),
+            c["upper_limit"].as_f64(),
+            "mm",
+        );
+    }
     out
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn iso_1101_characteristics_are_charted_with_their_limits() {
+        let report = serde_json::json!({
+            "tolerance_mm": 0.5,
+            "characteristics": [
+                {"name": "bore A", "characteristic": "diameter", "measured": 12.04,
+                 "lower_limit": 11.95, "upper_limit": 12.05},
+                {"name": "bore A", "characteristic": "position", "measured": 0.31,
+                 "lower_limit": 0.0, "upper_limit": 0.2},
+                {"name": "top", "characteristic": "flatness", "measured": null,
+                 "lower_limit": 0.0, "upper_limit": 0.05, "not_measured": "too little"}
+            ]
+        });
+        let c = from_report(&report);
+        let get = |n: &str| c.iter().find(|x| x.name == n);
+        let d = get("diameter bore A").expect("diameter");
+        assert_eq!(
+            (d.value, d.lower, d.upper),
+            (12.04, Some(11.95), Some(12.05))
+        );
+        assert_eq!(get("position bore A").expect("position").upper, Some(0.2));
+        assert!(
+            get("flatness top").is_none(),
+            "a figure not measured is a gap"
+        );
+    }
 
     #[test]
     fn a_report_gives_its_figures_with_their_limits() {

@@ -317,8 +317,10 @@ fn render(
             .as_array()
             .map(|a| {
                 a.iter()
-                    .map(|g| {
+                    .enumerate()
+                    .map(|(i, g)| {
                         vec![
+                            (i + 1).to_string(),
                             num(&g["peak_deviation_mm"], 3),
                             num(&g["mean_deviation_mm"], 3),
                             num(&g["points"], 0),
@@ -336,7 +338,13 @@ fn render(
             table(
                 &mut o,
                 "regions",
-                &["peak, mm", "mean, mm", "points", "centroid (CAD), mm"],
+                &[
+                    "region",
+                    "peak, mm",
+                    "mean, mm",
+                    "points",
+                    "centroid (CAD), mm",
+                ],
                 &rows,
             );
         }

@@ -32,17 +32,24 @@ pub fn write_deviation_ply(path: &Path, points: &[[f64; 3]], deviations: &[f64])
     write_atomic(path, &buf)
 }
 
-/// Colour of deviation `d` for tolerance `tol`: green within tolerance, cyan → blue below
-/// (missing material), yellow → red above (excess), saturating at ±2 tolerances (SPEC §2).
+/// Colour of deviation `d` for tolerance `tol`: within tolerance green at the nominal turning
+/// olive towards +tol and teal towards −tol; cyan → blue below (missing material), yellow → red
+/// above (excess), saturating at ±2 tolerances (SPEC §2).
 pub fn deviation_colour(d: f64, tol: f64) -> [u8; 3] {
     if !d.is_finite() {
         return [40, 40, 40];
     }
     let t = (d / tol).clamp(-2.0, 2.0);
     if t.abs() <= 1.0 {
-        // Within tolerance: green, lighter towards the limits.
-        let g = 0.55 + 0.35 * t.abs();
-        return [(40.0 + 60.0 * t.abs()) as u8, (255.0 * g) as u8, 60];
+        // Within tolerance, a scale of its own, so variation inside the band shows: bright
+        // green at the nominal, turning olive towards +tol and teal towards −tol (the colours
+        // past the limits, yellow and cyan, are brighter and set the limit apart).
+        let (up, down) = (t.max(0.0), (-t).max(0.0));
+        return [
+            (60.0 + 130.0 * up) as u8,
+            (230.0 - 40.0 * t.abs()) as u8,
+            (60.0 + 130.0 * down) as u8,
+        ];
     }
     // Out of tolerance: hue from yellow (t = 1) to red (t = 2), or cyan (−1) to blue (−2).
     let s = (t.abs() - 1.0) as f32;
@@ -349,11 +356,12 @@ pub fn render_deviation_map(
             size: 13.0,
         });
     }
-    for g in report.regions_out_of_tolerance.iter().take(8) {
+    for (i, g) in report.regions_out_of_tolerance.iter().take(8).enumerate() {
         let (u, v) = project(&g.centroid);
         let (x, y) = to_px(u, v);
         cv.circle((x, y), 6.0, BLACK, 2);
-        let text = format!("{:+.dec$} mm", g.peak_deviation_mm);
+        // numbered as in the report's reasons and the page's table
+        let text = format!("{}: {:+.dec$} mm", i + 1, g.peak_deviation_mm);
         flags.push(Flag {
             anchor: (x, y),
             radius: 6.0,

@@ -239,10 +239,15 @@ pub(super) fn build(
         .collect();
     let spacing = cell_size(points);
     let regions = out_of_tolerance_regions(points, dev, tol, spacing, 20);
-    for r in &regions {
+    for (i, r) in regions.iter().enumerate() {
         reasons.push(format!(
-            "{} points out of tolerance around ({:.1}, {:.1}, {:.1}) mm, peak {:+.3} mm",
-            r.points, r.centroid[0], r.centroid[1], r.centroid[2], r.peak_deviation_mm
+            "region {}: {} points out of tolerance around ({:.1}, {:.1}, {:.1}) mm, peak {:+.3} mm",
+            i + 1,
+            r.points,
+            r.centroid[0],
+            r.centroid[1],
+            r.centroid[2],
+            r.peak_deviation_mm
         ));
     }
     let m = pose.to_homogeneous();

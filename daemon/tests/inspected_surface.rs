@@ -2,8 +2,10 @@
 //! plate, scanned from above by one sensor. Over the whole closed CAD the scan is NOT MEASURED
 //! (its bottom and sides are never seen); with `inspected = "seen"` the surface is what the
 //! scanning sensor's camera and projector see inside the camera's image, the coverage counts
-//! over it and the block gets a verdict, and report.json says which surface the coverage is of. `faces` needs a STEP model
-//! and names a face the model has, or the configuration is refused.
+//! over it and the block gets a verdict, and report.json says which surface the coverage is of.
+//! `faces` needs a STEP model and names a face the model has, or the configuration is refused. A
+//! STEP block's characteristics come out of risd as out of `ris_core::inspect` on the stored
+//! merged cloud.
 
 use std::io::Write as _;
 use std::path::Path;
@@ -160,4 +162,125 @@ fn faces_need_a_step_model_that_has_them() {
     .expect("parses");
     let err = format!("{:#}", c.check_files().expect_err("an STL has no faces"));
     assert!(err.contains("STEP"), "{err}");
+}
+
+/// Characteristics in risd (issue 42 item 3): the same closed block as a STEP model (written by
+/// the independent OpenCASCADE wheel), its top face's flatness and profile toleranced in a
+/// characteristics file of the part. risd's report carries them, and `ris_core::inspect` of the
+/// scan's stored merged cloud with the same files gives the same figures and verdict: one
+/// pipeline.
+#[cfg(feature = "step")]
+#[test]
+fn risd_measures_a_parts_characteristics_as_ris_inspect_does() {
+    use ris_core::inspect::{inspect, load_characteristics, InspectParams};
+    use ris_core::mesh::step::{self, FaceSurface, StepOptions};
+    let dir = tempfile::tempdir().expect("tmp");
+    let cad = dir.path().join("block.step");
+    let script = format!(
+        "from OCP.BRepPrimAPI import BRepPrimAPI_MakeBox\n\
+         from OCP.STEPControl import STEPControl_Writer, STEPControl_AsIs\n\
+         from OCP.gp import gp_Pnt\n\
+         w = STEPControl_Writer()\n\
+         w.Transfer(BRepPrimAPI_MakeBox(gp_Pnt(-450, -350, -37), 900, 700, 40).Shape(), STEPControl_AsIs)\n\
+         assert w.Write({:?}) == 1\n",
+        cad.display().to_string()
+    );
+    let o = std::process::Command::new("python3")
+        .args(["-c", &script])
+        .output()
+        .expect("python3 with cadquery-ocp (installed by .ci/run)");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let model = step::read(&cad, &StepOptions::default()).expect("block.step");
+    let top = model
+        .faces
+        .iter()
+        .find(|f| matches!(f.surface, FaceSurface::Plane { normal, .. } if normal.z > 0.99))
+        .expect("the top face")
+        .entity;
+    let gdt = dir.path().join("block-gdt.toml");
+    std::fs::write(
+        &gdt,
+        format!(
+            "[[characteristic]]\nname = \"top\"\nkind = \"flatness\"\nfaces = [{top}]\ntolerance = 0.5\n\n\
+             [[characteristic]]\nname = \"top\"\nkind = \"profile\"\nfaces = [{top}]\ntolerance = 1.0\nmin_coverage = 0.3\n"
+        ),
+    )
+    .expect("gdt");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/wear-cell/s1.toml");
+    let text = format!(
+        "[cell]\nname = \"surface\"\n[[sensor]]\nname = \"s1\"\nbackend = \"mock\"\nscene = {:?}\n\
+         to_common = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]\n\
+         [[part]]\nid = \"block\"\ncad = \"block.step\"\ntolerance = 0.3\npose = \"known\"\nmin_coverage = 0.0\n\
+         characteristics = \"block-gdt.toml\"\n",
+        scene.display().to_string()
+    );
+    let config = CellConfig::parse(&text, dir.path(), "test cell").expect("config");
+    config.check_files().expect("files");
+    let mut cell = Cell::prepare(&config, 5, &|_, _, _| {}).expect("cell");
+    let data = tempfile::tempdir().expect("tmp");
+    let job = ScanJob {
+        part: Some(0),
+        ..ScanJob::default()
+    };
+    let (report, scan_dir) = cell
+        .scan(&job, data.path(), "gdt", &|| false, &|_| {})
+        .expect("scan");
+    let risd = report.inspection.expect("inspected");
+    let json: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(scan_dir.join("report.json")).expect("report.json"),
+    )
+    .expect("json");
+    let characteristics: Vec<ris_core::inspect::CharacteristicResult> =
+        serde_json::from_value(json["characteristics"].clone()).expect("characteristics");
+    assert_eq!(characteristics.len(), 2, "{json}");
+    for c in &characteristics {
+        assert!(c.measured.is_some(), "{c:?}");
+    }
+    // the same files through ris_core::inspect, on the stored merged cloud
+    let merged = ris_core::cloud::PointCloud::read_ply(&scan_dir.join("merged.ply")).expect("ply");
+    let points: Vec<[f64; 3]> = merged
+        .points
+        .iter()
+        .map(|p| [p[0].into(), p[1].into(), p[2].into()])
+        .collect();
+    let direct = inspect(
+        &points,
+        &ris_core::mesh::SignedDistance::new(model.mesh.clone()),
+        &InspectParams {
+            tolerance: 0.3,
+            init: Some(ris_core::register::Pose::identity()),
+            fit_pose: false,
+            min_coverage: 0.0,
+            characteristics: load_characteristics(&gdt, &model).expect("gdt"),
+            ..InspectParams::default()
+        },
+    )
+    .expect("inspect")
+    .report;
+    assert_eq!(
+        direct.verdict, risd.verdict,
+        "{:?} / {:?}",
+        direct.reasons, risd.reasons
+    );
+    for (a, b) in direct.characteristics.iter().zip(&characteristics) {
+        let (x, y) = (a.measured.expect("direct"), b.measured.expect("risd"));
+        assert!(
+            (x - y).abs() < 1e-3,
+            "{}: {x} against risd's {y}",
+            a.characteristic
+        );
+        assert_eq!(a.in_tolerance, b.in_tolerance, "{}", a.characteristic);
+    }
+    eprintln!(
+        "risd: {}",
+        characteristics
+            .iter()
+            .map(|c| format!(
+                "{} {:.4} mm",
+                c.characteristic,
+                c.measured.unwrap_or(f64::NAN)
+            ))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
 }

@@ -109,8 +109,10 @@ struct Cylinder {
 pub struct Characteristic {
     /// What the file says.
     pub spec: CharacteristicSpec,
-    /// Per CAD triangle: 1 on the characteristic's faces, 2 on a face that touches them, 0 else.
-    role: Vec<u8>,
+    /// The CAD triangles of the characteristic's faces, and of the faces that touch them
+    /// (sorted ids: memory follows the feature, not the model).
+    on_faces: Vec<u32>,
+    touching: Vec<u32>,
     cylinder: Option<Cylinder>,
     /// Area of the faces, mm², and an area-uniform sample of them.
     area: f64,
@@ -235,6 +237,13 @@ pub fn resolve(
             .filter_map(|n| model.face(*n))
             .map(|k| &model.faces[k].surface)
             .collect();
+        let kinds = || {
+            surfaces
+                .iter()
+                .map(|s| s.kind())
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
         let cylinder = match spec.kind {
             Kind::Diameter | Kind::Position => {
                 Some(cylinder_of(mesh, &on, &surfaces).ok_or_else(|| {
@@ -245,11 +254,7 @@ pub fn resolve(
                             "{} needs one cylindrical face (or the faces of one cylinder); {:?} are {}",
                             spec.kind.iso_name().0,
                             spec.faces,
-                            surfaces
-                                .iter()
-                                .map(|s| s.kind())
-                                .collect::<Vec<_>>()
-                                .join(", ")
+                            kinds()
                         ),
                     )
                 })?)
@@ -262,27 +267,20 @@ pub fn resolve(
                     return Err(Error::invalid(
                         ctx,
                         field("faces"),
-                        format!(
-                            "flatness is of planes; {:?} are {}",
-                            spec.faces,
-                            surfaces
-                                .iter()
-                                .map(|s| s.kind())
-                                .collect::<Vec<_>>()
-                                .join(", ")
-                        ),
+                        format!("flatness is of planes; {:?} are {}", spec.faces, kinds()),
                     ));
                 }
                 None
             }
             Kind::Profile => None,
         };
-        let role = roles(mesh, &on);
+        let (on_faces, touching) = roles(mesh, &on);
         let (samples, area) = face_samples(mesh, &on);
         let boundary = boundary_points(mesh, &on);
         out.push(Characteristic {
             spec,
-            role,
+            on_faces,
+            touching,
             cylinder,
             area,
             samples,
@@ -338,8 +336,21 @@ fn cylinder_of(mesh: &TriangleMesh, on: &[bool], surfaces: &[&FaceSurface]) -> O
     })
 }
 
-/// Per triangle: 1 on the faces, 2 sharing a vertex with them, 0 else.
-fn roles(mesh: &TriangleMesh, on: &[bool]) -> Vec<u8> {
+impl Characteristic {
+    /// 1 for a triangle of the characteristic's faces, 2 for one touching them, 0 else.
+    fn role(&self, triangle: u32) -> u8 {
+        if self.on_faces.binary_search(&triangle).is_ok() {
+            1
+        } else if self.touching.binary_search(&triangle).is_ok() {
+            2
+        } else {
+            0
+        }
+    }
+}
+
+/// The triangles `on`, and those sharing a vertex with them: sorted ids.
+fn roles(mesh: &TriangleMesh, on: &[bool]) -> (Vec<u32>, Vec<u32>) {
     let mut touched = vec![false; mesh.vertices.len()];
     for (t, tri) in mesh.triangles.iter().enumerate() {
         if on[t] {
@@ -348,19 +359,15 @@ fn roles(mesh: &TriangleMesh, on: &[bool]) -> Vec<u8> {
             }
         }
     }
-    mesh.triangles
-        .iter()
-        .enumerate()
-        .map(|(t, tri)| {
-            if on[t] {
-                1
-            } else if tri.iter().any(|&v| touched[v as usize]) {
-                2
-            } else {
-                0
-            }
-        })
-        .collect()
+    let (mut faces, mut touching) = (Vec::new(), Vec::new());
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        if on[t] {
+            faces.push(t as u32);
+        } else if tri.iter().any(|&v| touched[v as usize]) {
+            touching.push(t as u32);
+        }
+    }
+    (faces, touching)
 }
 
 /// Points every 0.25 mm along the boundary of the triangles `on` (their edges used once).
@@ -395,16 +402,23 @@ fn boundary_points(mesh: &TriangleMesh, on: &[bool]) -> Vec<[f64; 3]> {
 /// An area-uniform sample of the triangles `on` (one point per ≈0.25 mm², 200 to 20 000 of
 /// them) and their area.
 fn face_samples(mesh: &TriangleMesh, on: &[bool]) -> (Vec<[f64; 3]>, f64) {
-    let sub = TriangleMesh {
-        vertices: mesh.vertices.clone(),
-        triangles: mesh
-            .triangles
-            .iter()
-            .zip(on)
-            .filter(|(_, o)| **o)
-            .map(|(t, _)| *t)
-            .collect(),
-    };
+    // the faces' own triangles and vertices, not a copy of the model's
+    let mut index = std::collections::HashMap::<u32, u32>::new();
+    let mut sub = TriangleMesh::default();
+    for tri in mesh
+        .triangles
+        .iter()
+        .zip(on)
+        .filter(|(_, o)| **o)
+        .map(|(t, _)| t)
+    {
+        sub.triangles.push(tri.map(|v| {
+            *index.entry(v).or_insert_with(|| {
+                sub.vertices.push(mesh.vertices[v as usize]);
+                (sub.vertices.len() - 1) as u32
+            })
+        }));
+    }
     let area: f64 = (0..sub.triangles.len())
         .map(|t| {
             let [a, b, c] = sub.corners(t);
@@ -450,13 +464,11 @@ pub fn evaluate(
                 .as_ref()
                 .map_or(0.0, |cyl| rim_reach(cyl.radius) + cyl.radius);
         reach = reach.max(pad);
-        for (t, r) in c.role.iter().enumerate() {
-            if *r == 1 {
-                for p in mesh.corners(t) {
-                    for k in 0..3 {
-                        lo[k] = lo[k].min(p[k]);
-                        hi[k] = hi[k].max(p[k]);
-                    }
+        for &t in &c.on_faces {
+            for p in mesh.corners(t as usize) {
+                for k in 0..3 {
+                    lo[k] = lo[k].min(p[k]);
+                    hi[k] = hi[k].max(p[k]);
                 }
             }
         }
@@ -496,6 +508,12 @@ fn measure(c: &Characteristic, near: &[Near]) -> CharacteristicResult {
         offset_mm: None,
         not_measured: None,
     };
+    if let (Kind::Diameter, Some(cyl)) = (c.spec.kind, &c.cylinder) {
+        let d = 2.0 * cyl.radius;
+        result.nominal = d;
+        result.lower_limit = d + c.spec.lower.unwrap_or(0.0);
+        result.upper_limit = d + c.spec.upper.unwrap_or(0.0);
+    }
     let minimum = c.spec.min_coverage.unwrap_or(0.5);
     let filter = c.spec.filter.unwrap_or(2.5);
     let g = gate(c);
@@ -506,7 +524,7 @@ fn measure(c: &Characteristic, near: &[Near]) -> CharacteristicResult {
     let clear = (border - 0.125).max(0.0).powi(2);
     let face: Vec<&Near> = near
         .iter()
-        .filter(|n| c.role[n.triangle as usize] == 1 && n.dev.abs() <= g)
+        .filter(|n| c.role(n.triangle) == 1 && n.dev.abs() <= g)
         .collect();
     let on: Vec<&Near> = face
         .iter()
@@ -557,10 +575,6 @@ fn measure(c: &Characteristic, near: &[Near]) -> CharacteristicResult {
                     result.coverage = fit.coverage;
                     result.method = fit.method.clone();
                     if c.spec.kind == Kind::Diameter {
-                        let d = 2.0 * cyl.radius;
-                        result.nominal = d;
-                        result.lower_limit = d + c.spec.lower.unwrap_or(0.0);
-                        result.upper_limit = d + c.spec.upper.unwrap_or(0.0);
                         Ok(2.0 * fit.radius)
                     } else {
                         result.offset_mm = Some(fit.offset.into());
@@ -581,12 +595,6 @@ fn measure(c: &Characteristic, near: &[Near]) -> CharacteristicResult {
             result.in_tolerance = Some(v >= result.lower_limit && v <= result.upper_limit);
         }
         Err(why) => result.not_measured = Some(why),
-    }
-    if c.spec.kind == Kind::Diameter && result.nominal == 0.0 {
-        let d = 2.0 * c.cylinder.as_ref().map_or(0.0, |cyl| cyl.radius);
-        result.nominal = d;
-        result.lower_limit = d + c.spec.lower.unwrap_or(0.0);
-        result.upper_limit = d + c.spec.upper.unwrap_or(0.0);
     }
     result
 }
@@ -617,22 +625,6 @@ fn cell_means(uvh: &[(f64, f64, f64)], size: f64) -> Vec<(f64, f64, f64)> {
         .collect()
 }
 
-/// Least-squares plane through `pts`: centroid and unit normal.
-fn plane(pts: &[Vector3<f64>]) -> Option<(Vector3<f64>, Vector3<f64>)> {
-    if pts.len() < 3 {
-        return None;
-    }
-    let c = pts.iter().sum::<Vector3<f64>>() / pts.len() as f64;
-    let mut m = Matrix3::zeros();
-    for p in pts {
-        let d = p - c;
-        m += d * d.transpose();
-    }
-    let e = m.symmetric_eigen();
-    let k = e.eigenvalues.imin();
-    Some((c, e.eigenvectors.column(k).into_owned()))
-}
-
 /// Two unit vectors spanning the plane normal to `n`.
 fn basis(n: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
     let seed = if n.x.abs() < 0.9 {
@@ -651,7 +643,9 @@ const MIN_CELLS: usize = 8;
 /// plane's tilt refined by Lawson's iteration towards the Chebyshev fit).
 fn flatness(on: &[&Near], filter: f64) -> std::result::Result<(f64, usize), String> {
     let pts: Vec<Vector3<f64>> = on.iter().map(|n| n.p).collect();
-    let (c, n) = plane(&pts).ok_or("fewer than 3 points on the face")?;
+    let fit = crate::verify::fit::fit_plane(&pts)
+        .ok_or("fewer than 3 points on the face, or all on one line")?;
+    let (c, n) = (fit.point, fit.normal);
     let (e1, e2) = basis(&n);
     let uvh: Vec<(f64, f64, f64)> = pts
         .iter()
@@ -772,7 +766,7 @@ fn fit_cylinder(
     let end = (0.25 * (cyl.extent.1 - cyl.extent.0)).min(0.5);
     let wall: Vec<(f64, f64)> = near
         .iter()
-        .filter(|n| c.role[n.triangle as usize] == 1 && n.dev.abs() <= g)
+        .filter(|n| c.role(n.triangle) == 1 && n.dev.abs() <= g)
         .filter_map(|n| {
             let (u, v, h) = flat(&n.p);
             (h > cyl.extent.0 + end && h < cyl.extent.1 - end).then_some((u, v))
@@ -810,7 +804,7 @@ fn fit_cylinder(
     let mut band: Vec<(f64, f64, f64)> = Vec::new();
     for n in near
         .iter()
-        .filter(|n| c.role[n.triangle as usize] != 0 && n.dev.abs() <= 2.0)
+        .filter(|n| c.role(n.triangle) != 0 && n.dev.abs() <= 2.0)
     {
         let (u, v, h) = flat(&n.p);
         if h < lo || h > hi {
@@ -825,7 +819,7 @@ fn fit_cylinder(
         // A point closest to the wall is the wall's (left out) unless it lies nearer the
         // level of an end than the wall: the entry surface where the hole has moved.
         let into = (h - cyl.extent.0).min(cyl.extent.1 - h);
-        let wall_point = if c.role[n.triangle as usize] == 1 {
+        let wall_point = if c.role(n.triangle) == 1 {
             into > beyond.abs()
         } else {
             into > margin

@@ -34,6 +34,18 @@ pub struct Alignment {
     /// different map (deviations changing by more than half the tolerance RMS): the report is
     /// then `not_measured`.
     pub ambiguous: bool,
+    /// Change of the deviation *map*, mm (98th percentile): each point's deviation at the
+    /// runner-up's placement against the mean deviation the chosen pose shows at the same place
+    /// on the CAD (its 8 nearest points).
+    /// Large while the points' own deviations do not change: the runner-up is the chosen
+    /// pose's image under a symmetry of the CAD, and the deviations are the same either way
+    /// but lie on the part in one of two places.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub runner_up_placement_change_mm: Option<f64>,
+    /// The CAD looks the same at the runner-up's pose, which fits as well, but the deviations
+    /// would lie elsewhere on the part (see `runner_up_placement_change_mm`): the verdict
+    /// stands, where on the part is one of two.
+    pub symmetric: bool,
     /// How an ambiguity was settled: a datum reference frame measured every datum from one
     /// contender only.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -147,6 +159,11 @@ pub(super) fn coarse_alignment(
         }
     }
     let band = (3.0 * tolerance).max(0.5);
+    // A point this far past the CAD's open rim lies where the part has no surface: a pose that
+    // puts more points there than the best does is not a rival (a dome's apex off the panel's
+    // centre: turned about the apex, the surface fits but the outline does not).
+    let overhang = band.max(3.0);
+    type Scored = (f64, f64, Pose, usize);
     let refine = |pts: &[[f64; 3]], start: &Pose, iterations: usize| {
         let (p, _) = fit_to_surface(pts, cad, *start, iterations, &|_, d| {
             if d.abs() < 50.0 {
@@ -155,35 +172,37 @@ pub(super) fn coarse_alignment(
                 0.1
             }
         });
-        let (mut within, mut sq) = (0usize, 0.0);
+        let (mut within, mut sq, mut past) = (0usize, 0.0, 0usize);
         for x in pts {
             if let Some(c) = cad.query(&(p * Point3::from(*x)).coords) {
                 within += usize::from(c.distance.abs() <= band);
+                past += usize::from(c.beyond_boundary && c.distance.abs() > overhang);
                 sq += c.distance.min(50.0).powi(2);
             }
         }
         let m = pts.len().max(1) as f64;
-        (within as f64 / m, (sq / m).sqrt(), p)
+        (within as f64 / m, (sq / m).sqrt(), p, past)
     };
     // Best: most points on the surface, then the smaller truncated RMS.
-    let order =
-        |a: &(f64, f64, Pose), b: &(f64, f64, Pose)| b.0.total_cmp(&a.0).then(a.1.total_cmp(&b.1));
+    let order = |a: &Scored, b: &Scored| b.0.total_cmp(&a.0).then(a.1.total_cmp(&b.1));
     // Every hypothesis briefly on a small sample, the most promising ones at length.
     let few: Vec<[f64; 3]> = sub
         .iter()
         .step_by((sub.len() / 800).max(1))
         .copied()
         .collect();
-    let mut first: Vec<(f64, f64, Pose)> = candidates.iter().map(|c| refine(&few, c, 8)).collect();
+    let mut first: Vec<Scored> = candidates.iter().map(|c| refine(&few, c, 8)).collect();
     first.sort_by(order);
-    let scored: Vec<(f64, f64, Pose)> = first
+    let scored: Vec<Scored> = first
         .iter()
         .take(6)
-        .map(|(_, _, p)| refine(&sub, p, 20))
+        .map(|(_, _, p, _)| refine(&sub, p, 20))
         .collect();
-    let mut sorted: Vec<&(f64, f64, Pose)> = scored.iter().collect();
+    let mut sorted: Vec<&Scored> = scored.iter().collect();
     sorted.sort_by(|a, b| order(a, b));
     let best = sorted[0];
+    let slack = 3 + sub.len() / 500;
+    sorted.retain(|s| s.3 <= best.3 + slack);
     let centre = Point3::from(c_cloud);
     let differs = |p: &Pose| {
         let rel = p * best.2.inverse();
@@ -217,6 +236,38 @@ pub(super) fn coarse_alignment(
             (s / n as f64).sqrt()
         }
     });
+    // The map at the runner-up's placement against the chosen one's, place by place.
+    let placement_change = runner.map(|r| {
+        let (a, b) = (deviations(&best.2), deviations(&r.3));
+        let at_best: Vec<[f64; 3]> = sub
+            .iter()
+            .map(|x| (best.2 * Point3::from(*x)).coords.into())
+            .collect();
+        let tree = crate::spatial::KdTree::new(&at_best);
+        let reach = 4.0 * band.max(1.0);
+        let mut nn = Vec::new();
+        let mut change: Vec<f64> = Vec::new();
+        for (x, db) in sub.iter().zip(&b) {
+            let p: [f64; 3] = (r.3 * Point3::from(*x)).coords.into();
+            tree.k_nearest(&p, 8, &mut nn);
+            let near: Vec<f64> = nn
+                .iter()
+                .filter(|(i, d2)| *d2 <= reach * reach && a[*i].is_finite())
+                .map(|(i, _)| a[*i])
+                .collect();
+            if db.is_finite() && !near.is_empty() {
+                change.push((db - near.iter().sum::<f64>() / near.len() as f64).abs());
+            }
+        }
+        // A defect covers a few per cent of a part: the 98th percentile, not the RMS.
+        if change.is_empty() {
+            0.0
+        } else {
+            let k = (0.98 * (change.len() - 1) as f64) as usize;
+            *change.select_nth_unstable_by(k, f64::total_cmp).1
+        }
+    });
+    let contending = runner.is_some_and(|r| r.0 >= 0.9 * best.0);
     let alignment = Alignment {
         hypotheses: candidates.len(),
         band_mm: band,
@@ -225,8 +276,11 @@ pub(super) fn coarse_alignment(
         runner_up_rotation_deg: runner.map(|r| r.1),
         runner_up_shift_mm: runner.map(|r| r.2),
         runner_up_map_change_mm: change,
-        ambiguous: runner.is_some_and(|r| r.0 >= 0.9 * best.0)
-            && change.is_some_and(|c| c > 0.5 * tolerance),
+        ambiguous: contending && change.is_some_and(|c| c > 0.5 * tolerance),
+        runner_up_placement_change_mm: placement_change,
+        symmetric: contending
+            && change.is_some_and(|c| c <= 0.5 * tolerance)
+            && placement_change.is_some_and(|c| c > 0.75 * tolerance),
         settled_by: None,
     };
     let mut contenders = vec![best.2];

@@ -9,7 +9,7 @@
 //! states each direction; one the data do not pin makes the part `not_measured` rather than a
 //! map at an arbitrary position.
 
-use nalgebra::{SymmetricEigen, Vector3, Vector6};
+use nalgebra::{Matrix6, SymmetricEigen, Vector3, Vector6};
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -157,6 +157,69 @@ pub fn analyse(
     near: f64,
     tolerance: f64,
 ) -> Conditioning {
+    analyse_with_edges(points, cad, near, tolerance, &[])
+}
+
+/// [`analyse`] with the measured edges the fit held on the CAD's rim (CAD-frame point on the
+/// rim, the rim's outward direction in the surface, and the points that measured it, which
+/// count as that many rows).
+pub(super) fn analyse_with_edges(
+    points: &[[f64; 3]],
+    cad: &SignedDistance,
+    near: f64,
+    tolerance: f64,
+    edges: &[(Vector3<f64>, Vector3<f64>, f64)],
+) -> Conditioning {
+    let (on, centre, radius, m) = normal_matrix(points, cad, near, edges);
+    let eig = SymmetricEigen::new(m);
+    let mut order: Vec<usize> = (0..6).collect();
+    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+    let directions: Vec<Direction> = order
+        .iter()
+        .map(|&i| {
+            Direction::new(
+                &Vector6::from_column_slice(eig.eigenvectors.column(i).as_slice()),
+                eig.eigenvalues[i],
+                tolerance,
+            )
+        })
+        .collect();
+    let pinned = on >= 6 && directions.iter().all(|d| d.strength >= UNPINNED_STRENGTH);
+    Conditioning {
+        points: on,
+        centre: centre.into(),
+        radius_mm: radius,
+        directions,
+        pinned,
+    }
+}
+
+/// The motions (scaled rotation about the centre, then translation; unit 6-vectors) whose
+/// strength on the surface points of `points` (CAD frame) is below `below`, with the centre and
+/// the RMS radius that scales the rotations.
+pub(super) fn weak_motions(
+    points: &[[f64; 3]],
+    cad: &SignedDistance,
+    near: f64,
+    below: f64,
+) -> (Vector3<f64>, f64, Vec<Vector6<f64>>) {
+    let (_, centre, radius, m) = normal_matrix(points, cad, near, &[]);
+    let eig = SymmetricEigen::new(m);
+    let weak = (0..6)
+        .filter(|&i| eig.eigenvalues[i] < below)
+        .map(|i| Vector6::from_column_slice(eig.eigenvectors.column(i).as_slice()))
+        .collect();
+    (centre, radius, weak)
+}
+
+/// The point-to-plane normal matrix per row of the points of `points` within `near` of the
+/// surface and of `edges`: (surface points used, centre, RMS radius, matrix).
+fn normal_matrix(
+    points: &[[f64; 3]],
+    cad: &SignedDistance,
+    near: f64,
+    edges: &[(Vector3<f64>, Vector3<f64>, f64)],
+) -> (usize, Vector3<f64>, f64, Matrix6<f64>) {
     let on: Vec<(Vector3<f64>, Vector3<f64>)> = points
         .par_iter()
         .filter_map(|p| {
@@ -178,25 +241,26 @@ pub fn analyse(
         let r = (p - centre).cross(nrm) / radius;
         Some((Vector6::new(r.x, r.y, r.z, nrm.x, nrm.y, nrm.z), 0.0, 1.0))
     });
-    let eig = SymmetricEigen::new(eq.ata / n);
-    let mut order: Vec<usize> = (0..6).collect();
-    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
-    let directions: Vec<Direction> = order
-        .iter()
-        .map(|&i| {
-            Direction::new(
-                &Vector6::from_column_slice(eig.eigenvectors.column(i).as_slice()),
-                eig.eigenvalues[i],
-                tolerance,
-            )
-        })
-        .collect();
-    let pinned = on.len() >= 6 && directions.iter().all(|d| d.strength >= UNPINNED_STRENGTH);
-    Conditioning {
-        points: on.len(),
-        centre: centre.into(),
-        radius_mm: radius,
-        directions,
-        pinned,
+    let mut ata = eq.ata;
+    let mut rows = n;
+    if !edges.is_empty() {
+        // As in the fit: the edges count only along the motions the surface barely pins.
+        let eig = SymmetricEigen::new(eq.ata / n);
+        let mut weak = Matrix6::<f64>::zeros();
+        for k in 0..6 {
+            if eig.eigenvalues[k] < super::rim::PINS_BELOW {
+                let v = eig.eigenvectors.column(k);
+                weak += v * v.transpose();
+            }
+        }
+        let mut rim = Matrix6::<f64>::zeros();
+        for (p, m, w) in edges {
+            let r = (p - centre).cross(m) / radius;
+            let a = Vector6::new(r.x, r.y, r.z, m.x, m.y, m.z);
+            rim += a * a.transpose() * *w;
+            rows += w;
+        }
+        ata += weak * rim * weak;
     }
+    (on.len(), centre, radius, ata / rows)
 }

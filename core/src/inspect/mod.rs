@@ -23,6 +23,7 @@ mod frame;
 mod output;
 mod regions;
 mod report;
+mod rim;
 mod stability;
 mod surface;
 
@@ -45,6 +46,7 @@ pub use output::{
 };
 pub use regions::{out_of_tolerance_regions, Region};
 pub use report::{DatumResidual, Report, Statistics, NOT_MEASURED};
+pub use rim::RimUse;
 pub use stability::Stability;
 pub use surface::{seen, InspectedSurface, Viewpoint, GRAZING_LIMIT_DEG};
 
@@ -181,6 +183,7 @@ pub fn inspect(
     let mut frame_conditioning = None;
     let mut frame_warning = None;
     let mut stability = None;
+    let mut rim_fit = None;
     let (pose, mode, trusted_fit, iterations) = if framed {
         let f = frame_from_contenders(cloud, &fit, cad, params, &contenders, alignment.as_mut());
         if !f.converged {
@@ -193,8 +196,27 @@ pub fn inspect(
         frame_conditioning = Some(f.conditioning);
         (f.pose, "datum-frame", 0.0, f.iterations)
     } else if params.datums.is_empty() {
-        let (pose, mode, frac, it, trusted) = trusted_region_fit(&fit, cad, start, params);
-        stability = stability::analyse(&trusted, cad, &pose);
+        let (pose, mode, frac, it, trusted, rim) =
+            trusted_region_fit(&fit, cad, start, params, &contenders[1..]);
+        // Contending coarse poses that fit the surface as well but not the rim: the rim
+        // settles which one the part is in.
+        if let (Some(a), Some(r)) = (
+            alignment.as_mut().filter(|a| a.ambiguous || a.symmetric),
+            rim.as_ref(),
+        ) {
+            if contenders.len() > 1 && !r.turned_rival && r.summary.ambiguous.is_none() {
+                a.ambiguous = false;
+                a.symmetric = false;
+                a.settled_by = Some(format!(
+                    "the CAD's rim: of {} contending poses only this one puts the scan's edges on it ({:.0} mm of it)",
+                    contenders.len(),
+                    r.summary.seen_mm
+                ));
+            }
+        }
+        let edges = rim.as_ref().map_or(&[][..], |r| &r.edges[..]);
+        stability = stability::analyse(&trusted, cad, &pose, edges);
+        rim_fit = rim;
         (pose, mode, frac, it)
     } else {
         datum_fit(&fit, cad, start, params)
@@ -211,7 +233,17 @@ pub fn inspect(
                 .into_iter()
                 .filter(|p| params.datums.is_empty() || in_datums(p, &params.datums))
                 .collect();
-            conditioning::analyse(&fit_cad, cad, near, params.tolerance)
+            let edges: Vec<(Vector3<f64>, Vector3<f64>, f64)> = rim_fit
+                .as_ref()
+                .filter(|r| r.summary.ambiguous.is_none())
+                .map(|r| {
+                    r.edges
+                        .iter()
+                        .map(|e| (e.plane, e.normal, e.weight))
+                        .collect()
+                })
+                .unwrap_or_default();
+            conditioning::analyse_with_edges(&fit_cad, cad, near, params.tolerance, &edges)
         }
     };
     let mut report = report::build(
@@ -227,6 +259,7 @@ pub fn inspect(
             alignment,
             measurements,
             stability,
+            rim: rim_fit.map(|r| r.summary),
         },
         coverage,
         non_finite,
@@ -349,6 +382,7 @@ fn known_pose(
             alignment: None,
             measurements: Vec::new(),
             stability: None,
+            rim: None,
         },
         coverage,
         non_finite,
@@ -560,9 +594,22 @@ fn local_noise(points: &[[f64; 3]], dev: &[f64]) -> f64 {
 fn fit_to_surface(
     pts: &[[f64; 3]],
     cad: &SignedDistance,
+    pose: Pose,
+    max_iter: usize,
+    weight: &(dyn Fn(&[f64; 3], f64) -> f64 + Sync),
+) -> (Pose, usize) {
+    fit_with_edges(pts, cad, pose, max_iter, weight, &[])
+}
+
+/// [`fit_to_surface`] with measured edges held on the CAD's rim (see [`rim`]): each a
+/// point-to-plane row of its own weight beside the surface's.
+fn fit_with_edges(
+    pts: &[[f64; 3]],
+    cad: &SignedDistance,
     mut pose: Pose,
     max_iter: usize,
     weight: &(dyn Fn(&[f64; 3], f64) -> f64 + Sync),
+    edges: &[rim::Edge],
 ) -> (Pose, usize) {
     if pts.is_empty() {
         return (pose, 0);
@@ -588,7 +635,7 @@ fn fit_to_surface(
     while it < max_iter {
         it += 1;
         let centre = (pose * Point3::from(centroid)).coords;
-        let eq = crate::register::accumulate(&index, |&i| {
+        let mut eq = crate::register::accumulate(&index, |&i| {
             let p = (pose * Point3::from(pts[i])).coords;
             let c = cad.query_near(&p, hints[i].load(Ordering::Relaxed))?;
             hints[i].store(c.triangle, Ordering::Relaxed);
@@ -604,6 +651,31 @@ fn fit_to_surface(
                 w,
             ))
         });
+        if !edges.is_empty() && eq.count > 0 {
+            // The edges act only along the motions the surface barely pins: they pin what a
+            // surface cannot, and do not argue with one that pins (a scan's edge a little
+            // short of the rim must not pull a part its features hold).
+            let eig = nalgebra::SymmetricEigen::new(eq.ata / eq.count as f64);
+            let mut weak = Matrix6::<f64>::zeros();
+            for k in 0..6 {
+                if eig.eigenvalues[k] < rim::PINS_BELOW {
+                    let v = eig.eigenvectors.column(k);
+                    weak += v * v.transpose();
+                }
+            }
+            let (mut ata, mut atb) = (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros());
+            for e in edges {
+                let p = (pose * Point3::from(e.cloud)).coords;
+                let nrm = e.normal;
+                let r = (p - centre).cross(&nrm) / radius;
+                let a = Vector6::new(r.x, r.y, r.z, nrm.x, nrm.y, nrm.z);
+                ata += a * a.transpose() * e.weight;
+                atb += a * (-(p - e.plane).dot(&nrm) * e.weight);
+            }
+            eq.ata += weak * ata * weak;
+            eq.atb += weak * atb;
+            eq.count += edges.len();
+        }
         if eq.count < 6 {
             break;
         }
@@ -677,13 +749,25 @@ fn datum_fit(
     (pose, "datums", n_datum as f64 / pts.len() as f64, it)
 }
 
-/// Grow the trusted set by iterative trimming until it stops changing.
+/// Grow the trusted set by iterative trimming until it stops changing; where the scan reaches
+/// the CAD's open boundary, its edges hold the fit on the rim (see [`rim`]).
+#[allow(clippy::type_complexity)]
 fn trusted_region_fit(
     pts: &[[f64; 3]],
     cad: &SignedDistance,
     start: Pose,
     params: &InspectParams,
-) -> (Pose, &'static str, f64, usize, Vec<[f64; 3]>) {
+    contenders: &[Pose],
+) -> (
+    Pose,
+    &'static str,
+    f64,
+    usize,
+    Vec<[f64; 3]>,
+    Option<rim::RimFit>,
+) {
+    let cad_rim = rim::CadRim::of(cad.mesh());
+    let mut rim_fit: Option<rim::RimFit> = None;
     let (mut pose, mut total) = fit_to_surface(pts, cad, start, 15, &|_, d| {
         if d.abs() < 5.0 {
             1.0
@@ -738,7 +822,9 @@ fn trusted_region_fit(
             }
             trusted = next;
             let set = selected(pts, &trusted);
-            let (p, it) = fit_to_surface(&set, cad, pose, params.max_iterations, &|_, _| 1.0);
+            let edges = rim_fit.as_ref().map_or(&[][..], |r| &r.edges[..]);
+            let (p, it) =
+                fit_with_edges(&set, cad, pose, params.max_iterations, &|_, _| 1.0, edges);
             pose = p;
             total += it;
             if thr <= floor && changed * 1000 < pts.len() {
@@ -750,6 +836,19 @@ fn trusted_region_fit(
             trusted = mask;
             pose = p;
         }
+        if let Some(r) = rim::register(
+            pts,
+            &selected(pts, &trusted),
+            cad,
+            &cad_rim,
+            pose,
+            params.tolerance,
+            // where the rim is first found, other placements compete (the basin to refine in)
+            rim_fit.is_none().then_some(contenders),
+        ) {
+            pose = r.pose;
+            rim_fit = Some(r);
+        }
         let turned = crate::register::rotation_angle_deg(&(pose * before.inverse()));
         let shifted = (pose * centroid - before * centroid).norm();
         if turned < 1e-3 && shifted < 5e-3 {
@@ -758,6 +857,27 @@ fn trusted_region_fit(
     }
     tracing::debug!(noise, floor, "trusted-region fit");
     let set = selected(pts, &trusted);
+    // Once converged: other placements that would put the scan's edges on the rim as well
+    // (and the coarse alignment's runners-up) are looked for.
+    if rim_fit.is_some() {
+        rim_fit = rim::register(
+            pts,
+            &set,
+            cad,
+            &cad_rim,
+            pose,
+            params.tolerance,
+            Some(contenders),
+        );
+        if let Some(r) = &rim_fit {
+            pose = r.pose;
+        }
+    }
     let frac = set.len() as f64 / pts.len() as f64;
-    (pose, "trusted-region", frac, total, set)
+    let mode = if rim_fit.is_some() {
+        "trusted-region and rim"
+    } else {
+        "trusted-region"
+    };
+    (pose, mode, frac, total, set, rim_fit)
 }

@@ -63,7 +63,8 @@ pub struct DatumResidual {
 /// Registration summary.
 #[derive(Clone, Debug, Serialize)]
 pub struct Registration {
-    /// "trusted-region", "datums", "datum-frame", or "known pose" (nothing fitted).
+    /// "trusted-region" (with " and rim" where the CAD's rim held the fit), "datums",
+    /// "datum-frame", or "known pose" (nothing fitted).
     pub mode: String,
     /// Fit iterations in total.
     pub iterations: usize,
@@ -74,6 +75,9 @@ pub struct Registration {
     /// How far leaving out any one part of the fitted surface moves the fit (trusted-region
     /// fits).
     pub stability: Option<super::Stability>,
+    /// How the CAD's rim held the fit where the scan reached it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rim: Option<super::RimUse>,
 }
 
 /// The verdict that means the data cannot decide: too little of the part (or of a datum)
@@ -89,6 +93,7 @@ pub(super) struct Fit<'a> {
     pub alignment: Option<super::Alignment>,
     pub measurements: Vec<super::DatumMeasurement>,
     pub stability: Option<super::Stability>,
+    pub rim: Option<super::RimUse>,
 }
 
 /// The report.
@@ -197,6 +202,15 @@ pub(super) fn build(
             100.0 * a.best_score
         ));
     }
+    if let Some(a) = fit.alignment.as_ref().filter(|a| a.symmetric) {
+        warnings.push(format!(
+            "the CAD looks the same with the part turned {:.0}°, and the scan fits both ways: every deviation is as reported either way, but where it lies on the part is one of two places (the map shows one); give the part's pose or a datum that tells the two apart",
+            a.runner_up_rotation_deg.unwrap_or(0.0)
+        ));
+    }
+    if !unpinned.is_empty() {
+        unmeasured.extend(fit.rim.as_ref().and_then(|r| r.ambiguous.clone()));
+    }
     unmeasured.extend(unpinned);
     let datums: Vec<DatumResidual> = params
         .datums
@@ -270,6 +284,7 @@ pub(super) fn build(
             trusted_fraction: fit.trusted_fraction,
             alignment: fit.alignment,
             stability: fit.stability,
+            rim: fit.rim,
         },
         conditioning: fit.conditioning,
         warnings,

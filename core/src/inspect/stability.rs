@@ -11,7 +11,7 @@ use nalgebra::{Point3, SymmetricEigen, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use super::fit_to_surface;
+use super::{fit_with_edges, rim::Edge};
 use crate::mesh::SignedDistance;
 use crate::register::Pose;
 
@@ -33,8 +33,14 @@ pub struct Stability {
     pub worst_tile: [f64; 3],
 }
 
-/// Refit `trusted` (cloud frame) to `cad` from `pose` leaving out each tile in turn.
-pub fn analyse(trusted: &[[f64; 3]], cad: &SignedDistance, pose: &Pose) -> Option<Stability> {
+/// Refit `trusted` (cloud frame) to `cad` from `pose` leaving out each tile in turn; the
+/// `edges` held on the CAD's rim (none without a rim-aware fit) stay in every refit.
+pub(super) fn analyse(
+    trusted: &[[f64; 3]],
+    cad: &SignedDistance,
+    pose: &Pose,
+    edges: &[Edge],
+) -> Option<Stability> {
     let step = (trusted.len() / MAX_POINTS).max(1);
     let pts: Vec<[f64; 3]> = trusted.iter().step_by(step).copied().collect();
     if pts.len() < 20 * GRID * GRID {
@@ -74,7 +80,7 @@ pub fn analyse(trusted: &[[f64; 3]], cad: &SignedDistance, pose: &Pose) -> Optio
         .map(|&(u, v)| cell(u, 0) * GRID + cell(v, 1))
         .collect();
     let all = |_: &[f64; 3], _: f64| 1.0;
-    let (reference, _) = fit_to_surface(&pts, cad, *pose, MAX_ITERATIONS, &all);
+    let (reference, _) = fit_with_edges(&pts, cad, *pose, MAX_ITERATIONS, &all, edges);
     let probe: Vec<Point3<f64>> = pts.iter().step_by(7).map(|p| Point3::from(*p)).collect();
     let tiles: Vec<usize> = (0..GRID * GRID)
         .filter(|t| tile.iter().filter(|x| *x == t).count() * GRID * GRID * 4 >= pts.len())
@@ -88,7 +94,7 @@ pub fn analyse(trusted: &[[f64; 3]], cad: &SignedDistance, pose: &Pose) -> Optio
                 .filter(|(_, x)| **x != t)
                 .map(|(p, _)| *p)
                 .collect();
-            let (refit, _) = fit_to_surface(&kept, cad, reference, MAX_ITERATIONS, &all);
+            let (refit, _) = fit_with_edges(&kept, cad, reference, MAX_ITERATIONS, &all, edges);
             let shift = probe
                 .iter()
                 .map(|p| (refit * p - reference * p).norm())

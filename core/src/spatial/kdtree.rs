@@ -102,6 +102,40 @@ impl KdTree {
         }
     }
 
+    /// Every point within distance `r` of `q`, written into `out` as (original index, squared
+    /// distance) in no particular order. `out` is cleared first; its capacity is reused.
+    pub fn within(&self, q: &[f64; 3], r: f64, out: &mut Vec<(usize, f64)>) {
+        out.clear();
+        if !self.points.is_empty() && r >= 0.0 {
+            self.within_in(q, r * r, 0, self.points.len(), out);
+        }
+    }
+
+    fn within_in(&self, q: &[f64; 3], r2: f64, lo: usize, hi: usize, out: &mut Vec<(usize, f64)>) {
+        if hi - lo <= LEAF {
+            for i in lo..hi {
+                let d = dist2(q, &self.points[i]);
+                if d <= r2 {
+                    out.push((self.index[i] as usize, d));
+                }
+            }
+            return;
+        }
+        let m = (lo + hi) / 2;
+        let d = dist2(q, &self.points[m]);
+        if d <= r2 {
+            out.push((self.index[m] as usize, d));
+        }
+        let axis = self.dims[m] as usize;
+        let diff = q[axis] - self.points[m][axis];
+        if diff <= 0.0 || diff * diff <= r2 {
+            self.within_in(q, r2, lo, m, out);
+        }
+        if diff >= 0.0 || diff * diff <= r2 {
+            self.within_in(q, r2, m + 1, hi, out);
+        }
+    }
+
     fn knn_in(&self, q: &[f64; 3], k: usize, lo: usize, hi: usize, out: &mut Vec<(usize, f64)>) {
         let consider = |i: usize, out: &mut Vec<(usize, f64)>| {
             let d = dist2(q, &self.points[i]);
@@ -181,6 +215,23 @@ mod tests {
         let mut rng = crate::testing::Rng(seed);
         let mut r = || rng.range(0.0, 100.0);
         (0..n).map(|_| [r(), r(), r() * 0.1]).collect()
+    }
+
+    #[test]
+    fn within_finds_exactly_the_points_in_the_ball() {
+        let pts = cloud(5000, 3);
+        let tree = KdTree::new(&pts);
+        let mut out = Vec::new();
+        for (k, q) in cloud(100, 4).iter().enumerate() {
+            let r = 2.0 + k as f64 * 0.1;
+            tree.within(q, r, &mut out);
+            let mut got: Vec<usize> = out.iter().map(|e| e.0).collect();
+            got.sort_unstable();
+            let want: Vec<usize> = (0..pts.len())
+                .filter(|&i| dist2(q, &pts[i]) <= r * r)
+                .collect();
+            assert_eq!(got, want);
+        }
     }
 
     #[test]

@@ -1,0 +1,717 @@
+//! Rim-aware registration. A smooth panel (a dome, a saddle, a cylinder-like sheet) barely pins
+//! its position along itself: a slide is nearly a motion of the surface onto itself, and a
+//! bulge can pull the fit that way. Its trim edges do not slide. Where the scan reaches the
+//! CAD's open boundary, the place where the measured surface ends is a measurement of the
+//! rim's position across it, in the surface's own plane.
+//!
+//! The CAD's open boundary is sampled every [`SAMPLE_SPACING`] mm. At each sample a strip
+//! across the rim ([`HALF_WIDTH`] either side, within [`LEVEL`] of the surface) is searched for
+//! the scan's points; where they form one continuous run from well inside up to an end within
+//! the window, that end is the measured edge: the outermost point moved out by the expected gap
+//! between the last point and the true edge (the mean spacing of the run's sorted offsets, less
+//! for a camera lattice, as in the characteristics' rim fit). A run that goes on past the
+//! window (the scan continues beyond the CAD: a slid cloud, a fixture) or that starts too close
+//! to the rim (the surface inside was not seen) says nothing. Each edge found is a point-to-
+//! plane pair — the measured edge against the plane through the rim sample normal to the rim
+//! in the surface — that joins the surface fit; the window narrows from a search width to a
+//! few point spacings, and Tukey weights on the offsets leave out coverage limits that happen
+//! to lie near the rim. A coverage limit further inside than the last window is never taken for
+//! an edge, so a scan that stops short of the rim is still reported as not pinned.
+
+use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::{fit_with_edges, median};
+use crate::mesh::{SignedDistance, TriangleMesh};
+use crate::register::Pose;
+use crate::spatial::KdTree;
+
+/// Distance between samples along the CAD's open boundary, mm.
+pub(super) const SAMPLE_SPACING: f64 = 2.0;
+/// Half the width of the strip across the rim that each sample searches, mm.
+const HALF_WIDTH: f64 = 2.0;
+/// Largest distance of a strip's point from the CAD surface's tangent plane at the rim, mm.
+const LEVEL: f64 = 5.0;
+/// Search windows across the rim, mm, widest first (the last is raised to a few point
+/// spacings for sparse clouds).
+const WINDOWS: [f64; 3] = [24.0, 10.0, 4.0];
+/// Edges a fit needs before the rim takes part.
+const MIN_EDGES: usize = 8;
+/// Surface strength (see [`super::Conditioning`]) below which a motion is the rim's to pin:
+/// a tolerance-sized systematic deviation could slide the fit more than 100 tolerances along
+/// it (a dome's, a saddle's or a sheet's slide along itself). A surface that pins a motion
+/// better keeps it: a scan's edge that stops a few millimetres short of the rim (edge dropout)
+/// would otherwise pull the part that far.
+pub(super) const PINS_BELOW: f64 = 1e-4;
+/// Samples at most (the spacing grows for very long boundaries).
+const MAX_SAMPLES: usize = 20_000;
+
+/// One sample of the CAD's open boundary.
+#[derive(Clone, Copy, Debug)]
+struct RimSample {
+    point: Vector3<f64>,
+    /// In the surface, normal to the rim, away from the material.
+    outward: Vector3<f64>,
+    /// Along the rim.
+    along: Vector3<f64>,
+    /// The surface's normal at the rim.
+    normal: Vector3<f64>,
+}
+
+/// The CAD's open boundary (its rim, and the rims of holes and slots cut through it), sampled.
+pub(super) struct CadRim {
+    samples: Vec<RimSample>,
+    spacing: f64,
+}
+
+impl CadRim {
+    /// The open boundary of `mesh`: edges used by one triangle. A closed part has none.
+    pub(super) fn of(mesh: &TriangleMesh) -> CadRim {
+        let mut uses = crate::spatial::IntMap::<(u32, u32), u32>::default();
+        for tri in &mesh.triangles {
+            for k in 0..3 {
+                let (a, b) = (tri[k], tri[(k + 1) % 3]);
+                *uses.entry((a.min(b), a.max(b))).or_default() += 1;
+            }
+        }
+        let mut edges = Vec::new();
+        let mut length = 0.0;
+        for (t, tri) in mesh.triangles.iter().enumerate() {
+            for k in 0..3 {
+                let (a, b) = (tri[k], tri[(k + 1) % 3]);
+                if uses.get(&(a.min(b), a.max(b))) == Some(&1) {
+                    let [pa, pb, po] = [a, b, tri[(k + 2) % 3]].map(|i| mesh.vertices[i as usize]);
+                    length += (pb - pa).norm();
+                    edges.push((t, pa, pb, po));
+                }
+            }
+        }
+        let spacing = SAMPLE_SPACING.max(length / MAX_SAMPLES as f64);
+        // Samples every `spacing` of accumulated length, in the triangles' order.
+        let mut samples = Vec::new();
+        let mut carry = 0.5 * spacing;
+        for (t, pa, pb, po) in edges {
+            let c = mesh.corners(t);
+            let normal = (c[1] - c[0]).cross(&(c[2] - c[0]));
+            let len = (pb - pa).norm();
+            if normal.norm() == 0.0 || len == 0.0 {
+                continue;
+            }
+            let normal = normal.normalize();
+            let along = (pb - pa) / len;
+            let mut outward = along.cross(&normal);
+            if (po - pa).dot(&outward) > 0.0 {
+                outward = -outward;
+            }
+            let mut at = carry;
+            while at < len {
+                samples.push(RimSample {
+                    point: pa + along * at,
+                    outward,
+                    along,
+                    normal,
+                });
+                at += spacing;
+            }
+            carry = at - len;
+        }
+        CadRim { samples, spacing }
+    }
+
+    /// Whether the CAD has an open boundary.
+    pub(super) fn is_empty(&self) -> bool {
+        self.samples.is_empty()
+    }
+}
+
+/// A measured edge paired with the CAD's rim: the fit moves `cloud` (cloud frame) onto the
+/// plane through `plane` normal to `normal` (CAD frame).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Edge {
+    pub cloud: [f64; 3],
+    pub plane: Vector3<f64>,
+    pub normal: Vector3<f64>,
+    /// The points that measured it.
+    pub weight: f64,
+}
+
+/// How the rim took part in a registration (the report's `registration.rim`).
+#[derive(Clone, Debug, Serialize)]
+pub struct RimUse {
+    /// Length of the CAD's open boundary, mm.
+    pub cad_rim_mm: f64,
+    /// Length of it where the scan's own edge was found and used, mm.
+    pub seen_mm: f64,
+    /// RMS distance of those edges from the CAD's rim after the fit, mm.
+    pub rms_mm: f64,
+    /// Edges found but left out (their offset disagreed with the rest: a coverage limit near
+    /// the rim, a cut edge that moved).
+    pub left_out: usize,
+    /// Why the rim does not pin the fit although edges were found on it: another placement
+    /// puts as much of the scan's edge on the rim elsewhere. The edges then take no part in
+    /// the verdict's conditioning.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ambiguous: Option<String>,
+}
+
+/// The result of [`register`]: the pose, the edge pairs it rests on and the summary.
+pub(super) struct RimFit {
+    pub pose: Pose,
+    pub edges: Vec<Edge>,
+    pub summary: RimUse,
+    /// A placement turned against this one puts as much of the scan's edge on the rim (a
+    /// symmetric outline): the rim cannot settle which way round the part lies.
+    pub turned_rival: bool,
+}
+
+/// One observation: the edge's offset beyond the rim sample (along `outward`) and the run's
+/// point count; `None` where the strip shows no edge within `depth`.
+fn observe(
+    s: &RimSample,
+    tree: &KdTree,
+    pts: &[[f64; 3]],
+    cad_from_cloud: &Pose,
+    depth: f64,
+    nn: &mut Vec<(usize, f64)>,
+    u: &mut Vec<f64>,
+) -> Option<(f64, usize)> {
+    let inv = cad_from_cloud.inverse();
+    let c = inv * Point3::from(s.point);
+    let (m, a, n) = (
+        inv.rotation * s.outward,
+        inv.rotation * s.along,
+        inv.rotation * s.normal,
+    );
+    let reach = (HALF_WIDTH * HALF_WIDTH + depth * depth + LEVEL * LEVEL).sqrt();
+    tree.within(&c.coords.into(), reach, nn);
+    u.clear();
+    for &(i, _) in nn.iter() {
+        let d = Vector3::from(pts[i]) - c.coords;
+        let x = d.dot(&m);
+        if d.dot(&a).abs() <= HALF_WIDTH && d.dot(&n).abs() <= LEVEL && x.abs() <= depth {
+            u.push(x);
+        }
+    }
+    if u.len() < 6 {
+        return None;
+    }
+    u.sort_by(f64::total_cmp);
+    // The surface must be seen from well inside.
+    if u[0] > -0.5 * depth {
+        return None;
+    }
+    let spread = u[u.len() - 1] - u[0];
+    let spacing = (2.0 * HALF_WIDTH * spread / (u.len() - 1) as f64).sqrt();
+    let gap = (4.0 * spacing).max(0.5);
+    let mut end = 0;
+    while end + 1 < u.len() && u[end + 1] - u[end] <= gap {
+        end += 1;
+    }
+    let run = end + 1;
+    let (first, last) = (u[0], u[end]);
+    if run < 6 || last >= depth - gap || last - first < 0.4 * depth {
+        return None;
+    }
+    // The expected gap between the outermost point and the edge: the mean spacing g of the
+    // sorted offsets (a uniform distribution's end), c/(c + 1) g for a lattice of c columns
+    // across the strip.
+    let g = (last - first) / (run - 1) as f64;
+    let columns = (2.0 * HALF_WIDTH / g.max(1e-9)).sqrt().max(1.0);
+    Some((last + columns / (columns + 1.0) * g, run))
+}
+
+/// Observe every rim sample at `pose`: (sample, offset, run).
+fn observe_all(
+    rim: &CadRim,
+    tree: &KdTree,
+    pts: &[[f64; 3]],
+    pose: &Pose,
+    depth: f64,
+) -> Vec<(usize, f64, usize)> {
+    rim.samples
+        .par_iter()
+        .enumerate()
+        .map_init(
+            || (Vec::new(), Vec::new()),
+            |(nn, u), (k, s)| observe(s, tree, pts, pose, depth, nn, u).map(|(e, n)| (k, e, n)),
+        )
+        .flatten()
+        .collect()
+}
+
+/// Tukey biweights of the offsets about zero, scaled by their MAD (within `floor` … `cap`).
+fn tukey(offsets: &[f64], floor: f64, cap: f64) -> Vec<f64> {
+    let abs: Vec<f64> = offsets.iter().map(|e| e.abs()).collect();
+    let scale = (1.4826 * median(&abs)).clamp(floor, cap.max(floor));
+    let c = 4.685 * scale;
+    offsets
+        .iter()
+        .map(|e| {
+            let r = e / c;
+            if r.abs() >= 1.0 {
+                0.0
+            } else {
+                (1.0 - r * r).powi(2)
+            }
+        })
+        .collect()
+}
+
+/// The pairs of the observations with a positive weight.
+fn pairs(rim: &CadRim, pose: &Pose, obs: &[(usize, f64, usize)], weights: &[f64]) -> Vec<Edge> {
+    let inv = pose.inverse();
+    obs.iter()
+        .zip(weights)
+        .filter(|(_, w)| **w > 0.0)
+        .map(|(&(k, e, n), w)| {
+            let s = &rim.samples[k];
+            let at = s.point + s.outward * e;
+            Edge {
+                cloud: (inv * Point3::from(at)).coords.into(),
+                plane: s.point,
+                normal: s.outward,
+                weight: w * n as f64,
+            }
+        })
+        .collect()
+}
+
+/// One converged rim-aware fit: the pose, the observations at the finest window and their
+/// weights.
+struct Converged {
+    pose: Pose,
+    obs: Vec<(usize, f64, usize)>,
+    weights: Vec<f64>,
+}
+
+impl Converged {
+    /// The rim samples whose edge the fit used, in order.
+    fn matched(&self) -> Vec<usize> {
+        self.obs
+            .iter()
+            .zip(&self.weights)
+            .filter(|(_, w)| **w > 0.0)
+            .map(|(o, _)| o.0)
+            .collect()
+    }
+}
+
+/// What [`register`] works with.
+struct Scene<'a> {
+    pts: &'a [[f64; 3]],
+    tree: KdTree,
+    fit_set: Vec<[f64; 3]>,
+    cad: &'a SignedDistance,
+    rim: &'a CadRim,
+    spacing: f64,
+    finest: f64,
+    /// How far from the rim a measured edge may lie and count as on it, mm.
+    band: f64,
+}
+
+impl Scene<'_> {
+    /// The windowed fit from `pose`; `None` when too few edges are found.
+    fn converge(&self, mut pose: Pose) -> Option<Converged> {
+        let centroid = Point3::from(
+            self.fit_set
+                .iter()
+                .fold(Vector3::zeros(), |a, p| a + Vector3::from(*p))
+                / self.fit_set.len() as f64,
+        );
+        let all = |_: &[f64; 3], _: f64| 1.0;
+        for depth in WINDOWS.iter().map(|d| d.max(self.finest)) {
+            for _round in 0..8 {
+                let obs = observe_all(self.rim, &self.tree, self.pts, &pose, depth);
+                if obs.len() < MIN_EDGES {
+                    break;
+                }
+                let offsets: Vec<f64> = obs.iter().map(|o| o.1).collect();
+                // The widest window weighs every edge it finds (a least-squares compromise
+                // that a subset of coverage limits cannot drag); narrower ones trim to the
+                // consensus.
+                let weights = tukey(
+                    &offsets,
+                    (0.25 * depth).max(0.5 * self.spacing),
+                    f64::INFINITY,
+                );
+                let edges = pairs(self.rim, &pose, &obs, &weights);
+                if edges.len() < MIN_EDGES {
+                    break;
+                }
+                let before = pose;
+                (pose, _) = fit_with_edges(&self.fit_set, self.cad, pose, 20, &all, &edges);
+                let moved = (pose * centroid - before * centroid).norm()
+                    + crate::register::rotation_angle_deg(&(pose * before.inverse())).to_radians()
+                        * 1000.0;
+                if moved < 1e-3 {
+                    break;
+                }
+            }
+        }
+        let obs = observe_all(self.rim, &self.tree, self.pts, &pose, self.finest);
+        let offsets: Vec<f64> = obs.iter().map(|o| o.1).collect();
+        // At the finest window an edge within a few point spacings of the rim counts, however
+        // widely the rest scatter (a wavering coverage limit near the rim).
+        // and an edge is on the rim only within `band` of it.
+        let weights: Vec<f64> = tukey(&offsets, 0.5 * self.spacing, self.spacing)
+            .into_iter()
+            .zip(&offsets)
+            .map(|(w, e)| if e.abs() <= self.band { w } else { 0.0 })
+            .collect();
+        let c = Converged { pose, obs, weights };
+        (c.matched().len() >= MIN_EDGES).then_some(c)
+    }
+
+    /// Points of a sample of the cloud that `pose` puts beyond the CAD's rim by more than two
+    /// point spacings (where the part has no surface).
+    fn overhang(&self, pose: &Pose, sample: &[[f64; 3]]) -> usize {
+        let margin = (2.0 * self.spacing).max(1.0);
+        sample
+            .par_iter()
+            .filter(|p| {
+                self.cad
+                    .query(&(pose * Point3::from(**p)).coords)
+                    .is_some_and(|c| c.beyond_boundary && c.distance.abs() > margin)
+            })
+            .count()
+    }
+
+    /// Other places the scan's edges could sit on the rim: along each motion the surface
+    /// barely pins, the scan slid as far as it goes without overhanging the rim (in either
+    /// sense), and the windowed fit from there.
+    fn rivals(&self, best: &Converged) -> Vec<Converged> {
+        let fit_cad: Vec<[f64; 3]> = self
+            .fit_set
+            .iter()
+            .map(|p| (best.pose * Point3::from(*p)).coords.into())
+            .collect();
+        let (centre, radius, weak) =
+            super::conditioning::weak_motions(&fit_cad, self.cad, 5.0, PINS_BELOW);
+        let sample: Vec<[f64; 3]> = self
+            .pts
+            .iter()
+            .step_by((self.pts.len() / 3000).max(1))
+            .copied()
+            .collect();
+        let base = self.overhang(&best.pose, &sample);
+        let allowed = base + 3 + sample.len() / 1000;
+        let slid = |v: &nalgebra::Vector6<f64>, t: f64| {
+            let omega = Vector3::new(v[0], v[1], v[2]) * (t / radius);
+            let rot = nalgebra::UnitQuaternion::from_scaled_axis(omega);
+            let shift = centre - rot * centre + Vector3::new(v[3], v[4], v[5]) * t;
+            Pose::from_parts(shift.into(), rot) * best.pose
+        };
+        let extent = 2.0 * radius;
+        let mut starts = Vec::new();
+        for v in &weak {
+            for sign in [1.0, -1.0] {
+                // Double the slide until the scan overhangs the rim, then halve the bracket
+                // down to a millimetre.
+                let (mut ok, mut bad) = (0.0, None);
+                let mut t = 1.0;
+                while t <= extent {
+                    if self.overhang(&slid(v, sign * t), &sample) > allowed {
+                        bad = Some(t);
+                        break;
+                    }
+                    ok = t;
+                    t *= 2.0;
+                }
+                if let Some(mut hi) = bad {
+                    while hi - ok > 1.0 {
+                        let mid = 0.5 * (ok + hi);
+                        if self.overhang(&slid(v, sign * mid), &sample) > allowed {
+                            hi = mid;
+                        } else {
+                            ok = mid;
+                        }
+                    }
+                }
+                if ok >= 2.0 {
+                    starts.push(slid(v, sign * ok));
+                }
+            }
+        }
+        starts
+            .into_par_iter()
+            .filter_map(|start| self.converge(start))
+            .collect()
+    }
+}
+
+/// Register `surface` (cloud frame: the trusted points) to `cad` from `pose` together with the
+/// edges the cloud `pts` shows on the CAD's rim; `None` when too few edges are found (the scan
+/// does not reach the rim, or the CAD has none). `tolerance` (mm): poses that place the points
+/// less than this apart are one. `contenders`: other starting poses (the coarse alignment's
+/// runners-up) whose rim fits compete with this one; `None`: no search for rivals (a later
+/// pass from a pose already judged).
+pub(super) fn register(
+    pts: &[[f64; 3]],
+    surface: &[[f64; 3]],
+    cad: &SignedDistance,
+    rim: &CadRim,
+    pose: Pose,
+    tolerance: f64,
+    contenders: Option<&[Pose]>,
+) -> Option<RimFit> {
+    if rim.is_empty() || surface.len() < 10 {
+        return None;
+    }
+    let tree = KdTree::new(pts);
+    // The cloud's point spacing sets the narrowest window and the offsets' noise floor.
+    let spacing = point_spacing(pts, &tree);
+    let scene = Scene {
+        pts,
+        tree,
+        fit_set: surface
+            .iter()
+            .step_by((surface.len() / 8_000).max(1))
+            .copied()
+            .collect(),
+        cad,
+        rim,
+        spacing,
+        finest: WINDOWS[WINDOWS.len() - 1].max(6.0 * spacing),
+        // a point spacing and a half, or a trim line's own tolerance
+        band: (1.5 * spacing).max(2.0 * tolerance),
+    };
+    // A surface that pins every motion needs no rim.
+    let fit_cad: Vec<[f64; 3]> = scene
+        .fit_set
+        .iter()
+        .map(|p| (pose * Point3::from(*p)).coords.into())
+        .collect();
+    if super::conditioning::weak_motions(&fit_cad, cad, 5.0, PINS_BELOW)
+        .2
+        .is_empty()
+    {
+        return None;
+    }
+    let first = scene.converge(pose)?;
+    let Some(contenders) = contenders else {
+        return Some(finish(rim, &scene, first, None, false));
+    };
+    // The fit with the most rim wins; another that rests on rim samples the winner does not
+    // use (a scan stopping short of the rim all round matches it at either side; a symmetric
+    // outline matches it turned) is a rival.
+    let mut all = scene.rivals(&first);
+    // A contender's placement is searched along its own slides as well: it starts where the
+    // coarse alignment left it, perhaps as far off along the surface as the first was.
+    for c in contenders.iter().filter_map(|p| scene.converge(*p)) {
+        all.extend(scene.rivals(&c));
+        all.push(c);
+    }
+    all.push(first);
+    all.sort_by_key(|c| std::cmp::Reverse(c.matched().len()));
+    let best = all.swap_remove(0);
+    let matched = best.matched();
+    let probe: Vec<Point3<f64>> = scene
+        .fit_set
+        .iter()
+        .step_by(7)
+        .map(|p| Point3::from(*p))
+        .collect();
+    // (how far apart the points are placed, the rival's rim, turned by more than 10°)
+    let rivals: Vec<(f64, usize, bool)> = all
+        .iter()
+        .filter_map(|c| {
+            let apart = probe
+                .iter()
+                .map(|p| (c.pose * p - best.pose * p).norm())
+                .fold(0.0, f64::max);
+            // Each placement's own evidence: the rim it matches that the other does not. A
+            // rival matches at least about half as much of its own as the winner does (a
+            // wavering shadow line brushing the rim at its crests is not a trim line). Only a
+            // sample across the motion between the two tells them apart (one along it fits
+            // both), so each counts by how squarely it faces that motion.
+            let theirs = c.matched();
+            let rel = c.pose * best.pose.inverse();
+            let facing = |k: &usize| {
+                let s = &rim.samples[*k];
+                let d = (rel * Point3::from(s.point)).coords - s.point;
+                let n = d.norm();
+                if n > 1e-9 {
+                    (s.outward.dot(&d) / n).abs()
+                } else {
+                    0.0
+                }
+            };
+            // and by how closely it sits on the rim (a trim line's edge scatters by the
+            // edge estimate's noise; a coverage limit brushing the rim, across the band).
+            let sigma = 0.5 * scene.spacing;
+            let closeness = |c: &Converged, k: usize| {
+                c.obs
+                    .iter()
+                    .find(|o| o.0 == k)
+                    .map_or(0.0, |o| (-0.5 * (o.1 / sigma).powi(2)).exp())
+            };
+            let exclusive = |x: &Converged, a: &[usize], b: &[usize]| -> f64 {
+                a.iter()
+                    .filter(|k| b.binary_search(k).is_err())
+                    .map(|k| facing(k) * closeness(x, *k))
+                    .sum()
+            };
+            let (new, own) = (
+                exclusive(c, &theirs, &matched),
+                exclusive(&best, &matched, &theirs),
+            );
+
+            (apart > tolerance.max(0.5)
+                && 2 * theirs.len() >= matched.len()
+                && new + MIN_EDGES as f64 >= 0.5 * own)
+                .then_some((
+                    apart,
+                    theirs.len(),
+                    crate::register::rotation_angle_deg(&rel) > 10.0,
+                ))
+        })
+        .collect();
+    let rival = rivals
+        .iter()
+        .filter(|r| !r.2)
+        .max_by(|a, b| a.0.total_cmp(&b.0));
+    let turned_rival = rivals.iter().any(|r| r.2);
+    Some(finish(
+        rim,
+        &scene,
+        best,
+        rival.map(|r| (r.0, r.1)),
+        turned_rival,
+    ))
+}
+
+/// The result of the winning fit `best`, with the farthest untold-apart placement (how far
+/// the points move, its rim samples) when one was found.
+fn finish(
+    rim: &CadRim,
+    scene: &Scene,
+    best: Converged,
+    rival: Option<(f64, usize)>,
+    turned_rival: bool,
+) -> RimFit {
+    let edges = pairs(rim, &best.pose, &best.obs, &best.weights);
+    let used: Vec<f64> = best
+        .obs
+        .iter()
+        .zip(&best.weights)
+        .filter(|(_, w)| **w > 0.0)
+        .map(|(o, _)| o.1)
+        .collect();
+    let summary = RimUse {
+        cad_rim_mm: rim.samples.len() as f64 * rim.spacing,
+        seen_mm: used.len() as f64 * rim.spacing,
+        rms_mm: (used.iter().map(|e| e * e).sum::<f64>() / used.len() as f64).sqrt(),
+        left_out: best.obs.len() - used.len(),
+        ambiguous: rival.map(|(apart, n)| {
+            format!(
+                "the scan's edges fit the CAD's rim along {:.0} mm, but also along {:.0} mm with the points placed up to {apart:.1} mm elsewhere: where the scan ends short of the rim cannot be told from where the part ends",
+                used.len() as f64 * rim.spacing,
+                n as f64 * rim.spacing
+            )
+        }),
+    };
+    tracing::debug!(?summary, spacing = scene.spacing, "rim-aware fit");
+    RimFit {
+        pose: best.pose,
+        edges,
+        summary,
+        turned_rival,
+    }
+}
+
+/// Median distance from a point to its nearest neighbour (a sample of the cloud), mm.
+fn point_spacing(pts: &[[f64; 3]], tree: &KdTree) -> f64 {
+    let d: Vec<f64> = pts
+        .par_iter()
+        .step_by((pts.len() / 2000).max(1))
+        .map_init(Vec::new, |nn, p| {
+            tree.k_nearest(p, 2, nn);
+            nn.get(1).map_or(f64::NAN, |e| e.1.sqrt())
+        })
+        .collect();
+    median(&d)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_sheets_rim_is_sampled_with_outward_normals_in_its_plane() {
+        let mesh = TriangleMesh::height_field(20, 10, (-50.0, 50.0), (-25.0, 25.0), |_, _| 0.0);
+        let rim = CadRim::of(&mesh);
+        let perimeter = 2.0 * (100.0 + 50.0);
+        let count = rim.samples.len() as f64;
+        assert!(
+            (count * rim.spacing - perimeter).abs() <= 2.0 * rim.spacing,
+            "{count}"
+        );
+        for s in &rim.samples {
+            assert!(s.outward.z.abs() < 1e-9 && s.normal.z.abs() > 0.999);
+            // outward points away from the sheet's centre
+            assert!(s.point.dot(&s.outward) > 0.0, "{:?}", s.point);
+        }
+        // a closed part (a tetrahedron) has none
+        let tetra = TriangleMesh {
+            vertices: vec![
+                Vector3::new(0.0, 0.0, 0.0),
+                Vector3::new(10.0, 0.0, 0.0),
+                Vector3::new(0.0, 10.0, 0.0),
+                Vector3::new(0.0, 0.0, 10.0),
+            ],
+            triangles: vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
+        };
+        assert!(CadRim::of(&tetra).is_empty());
+    }
+
+    #[test]
+    fn an_edge_is_found_where_the_points_end() {
+        // A lattice of 0.8 mm ending at x = 10.3 (the rim sample at x = 10).
+        let mut pts = Vec::new();
+        let mut x = -30.0;
+        while x <= 10.3 {
+            let mut y = -10.0;
+            while y <= 10.0 {
+                pts.push([x, y, 0.0]);
+                y += 0.8;
+            }
+            x += 0.8;
+        }
+        let last = pts.iter().map(|p| p[0]).fold(f64::MIN, f64::max);
+        let tree = KdTree::new(&pts);
+        let s = RimSample {
+            point: Vector3::new(10.0, 0.0, 0.0),
+            outward: Vector3::x(),
+            along: Vector3::y(),
+            normal: Vector3::z(),
+        };
+        let (mut nn, mut u) = (Vec::new(), Vec::new());
+        let (e, n) =
+            observe(&s, &tree, &pts, &Pose::identity(), 10.0, &mut nn, &mut u).expect("edge");
+        assert!(n > 20);
+        // beyond the last column by less than one spacing
+        assert!(e > last - 10.0 && e < last - 10.0 + 0.8, "{e} vs {last}");
+        // a scan that runs on past the window shows no edge
+        let far = RimSample {
+            point: Vector3::new(-15.0, 0.0, 0.0),
+            ..s
+        };
+        assert!(observe(&far, &tree, &pts, &Pose::identity(), 10.0, &mut nn, &mut u).is_none());
+        // nor one that stops short of it
+        let short = RimSample {
+            point: Vector3::new(25.0, 0.0, 0.0),
+            ..s
+        };
+        assert!(observe(
+            &short,
+            &tree,
+            &pts,
+            &Pose::identity(),
+            10.0,
+            &mut nn,
+            &mut u
+        )
+        .is_none());
+    }
+}

@@ -278,10 +278,16 @@ fn smooth_panels_seen_to_their_rim_are_placed_and_judged() {
 }
 
 /// A scan whose field of view stops short of the rim all round (turned against it, as a
-/// camera's is) never meets the rim.
+/// camera's is) never meets the rim. Seed 3's dome is symmetric under a half turn about its
+/// apex where the scan sees it: turned, the field of view's straight edge comes near the rim
+/// and the fit lays it on the rim, so the placement that stays short of the rim must count
+/// as a rival.
 #[test]
 fn panels_scanned_short_of_their_rim_name_the_slide() {
-    for seed in [1u64, 0].into_iter().chain(2..seeds(2, 6).end) {
+    for seed in [1u64, 0, 3]
+        .into_iter()
+        .chain((2..seeds(2, 6).end).filter(|s| *s != 3))
+    {
         if std::env::var("RIM_SEED").is_ok_and(|s| s != seed.to_string()) {
             continue;
         }

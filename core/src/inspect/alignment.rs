@@ -209,10 +209,6 @@ pub(super) fn coarse_alignment(
         let shift = ((p * centre) - (best.2 * centre)).norm();
         (rotation_angle_deg(&rel), shift)
     };
-    let runner = sorted.iter().skip(1).find_map(|s| {
-        let (deg, mm) = differs(&s.2);
-        (deg > 2.0 || mm > 5.0).then_some((s.0, deg, mm, s.2))
-    });
     let deviations = |p: &Pose| -> Vec<f64> {
         sub.iter()
             .map(|x| {
@@ -221,10 +217,11 @@ pub(super) fn coarse_alignment(
             })
             .collect()
     };
-    let change = runner.map(|r| {
-        let (a, b) = (deviations(&best.2), deviations(&r.3));
+    let at_best = deviations(&best.2);
+    // RMS change of the points' own deviations between the chosen pose and `p`.
+    let change = |b: &[f64]| {
         let (mut s, mut n) = (0.0, 0usize);
-        for (x, y) in a.iter().zip(&b) {
+        for (x, y) in at_best.iter().zip(b) {
             if x.is_finite() && y.is_finite() {
                 s += (x - y).powi(2);
                 n += 1;
@@ -235,25 +232,24 @@ pub(super) fn coarse_alignment(
         } else {
             (s / n as f64).sqrt()
         }
-    });
-    // The map at the runner-up's placement against the chosen one's, place by place.
-    let placement_change = runner.map(|r| {
-        let (a, b) = (deviations(&best.2), deviations(&r.3));
-        let at_best: Vec<[f64; 3]> = sub
-            .iter()
-            .map(|x| (best.2 * Point3::from(*x)).coords.into())
-            .collect();
-        let tree = crate::spatial::KdTree::new(&at_best);
+    };
+    // The map at `p`'s placement against the chosen one's, place by place.
+    let placed: Vec<[f64; 3]> = sub
+        .iter()
+        .map(|x| (best.2 * Point3::from(*x)).coords.into())
+        .collect();
+    let tree = crate::spatial::KdTree::new(&placed);
+    let placement_change = |p: &Pose, b: &[f64]| {
         let reach = 4.0 * band.max(1.0);
         let mut nn = Vec::new();
         let mut change: Vec<f64> = Vec::new();
-        for (x, db) in sub.iter().zip(&b) {
-            let p: [f64; 3] = (r.3 * Point3::from(*x)).coords.into();
-            tree.k_nearest(&p, 8, &mut nn);
+        for (x, db) in sub.iter().zip(b) {
+            let q: [f64; 3] = (p * Point3::from(*x)).coords.into();
+            tree.k_nearest(&q, 8, &mut nn);
             let near: Vec<f64> = nn
                 .iter()
-                .filter(|(i, d2)| *d2 <= reach * reach && a[*i].is_finite())
-                .map(|(i, _)| a[*i])
+                .filter(|(i, d2)| *d2 <= reach * reach && at_best[*i].is_finite())
+                .map(|(i, _)| at_best[*i])
                 .collect();
             if db.is_finite() && !near.is_empty() {
                 change.push((db - near.iter().sum::<f64>() / near.len() as f64).abs());
@@ -266,8 +262,34 @@ pub(super) fn coarse_alignment(
             let k = (0.98 * (change.len() - 1) as f64) as usize;
             *change.select_nth_unstable_by(k, f64::total_cmp).1
         }
-    });
-    let contending = runner.is_some_and(|r| r.0 >= 0.9 * best.0);
+    };
+    // The first pose that differs from the chosen one (by more than 2° or 5 mm); when it
+    // neither contends nor shows a symmetry, the first of the others fitting nearly as well
+    // (at least 90 % of the best score) that puts the same deviations elsewhere on the part:
+    // a surface symmetric where the scan sees it can hide its turned placement behind a near
+    // duplicate of the chosen one.
+    type Runner = (f64, f64, f64, Pose, f64, f64);
+    let mut runners: Vec<Runner> = Vec::new();
+    for s in sorted.iter().skip(1) {
+        let (deg, mm) = differs(&s.2);
+        if !(deg > 2.0 || mm > 5.0) {
+            continue;
+        }
+        if !runners.is_empty() && (s.0 < 0.9 * best.0 || runners.len() >= 4) {
+            break;
+        }
+        let b = deviations(&s.2);
+        runners.push((s.0, deg, mm, s.2, change(&b), placement_change(&s.2, &b)));
+    }
+    let contends = |r: &&Runner| r.0 >= 0.9 * best.0;
+    let is_ambiguous = |r: &&Runner| contends(r) && r.4 > 0.5 * tolerance;
+    let is_symmetric =
+        |r: &&Runner| contends(r) && r.4 <= 0.5 * tolerance && r.5 > 0.75 * tolerance;
+    let runner = runners
+        .first()
+        .filter(|r| is_ambiguous(r) || is_symmetric(r))
+        .or_else(|| runners.iter().find(is_symmetric))
+        .or(runners.first());
     let alignment = Alignment {
         hypotheses: candidates.len(),
         band_mm: band,
@@ -275,12 +297,10 @@ pub(super) fn coarse_alignment(
         runner_up_score: runner.map(|r| r.0),
         runner_up_rotation_deg: runner.map(|r| r.1),
         runner_up_shift_mm: runner.map(|r| r.2),
-        runner_up_map_change_mm: change,
-        ambiguous: contending && change.is_some_and(|c| c > 0.5 * tolerance),
-        runner_up_placement_change_mm: placement_change,
-        symmetric: contending
-            && change.is_some_and(|c| c <= 0.5 * tolerance)
-            && placement_change.is_some_and(|c| c > 0.75 * tolerance),
+        runner_up_map_change_mm: runner.map(|r| r.4),
+        ambiguous: runner.as_ref().is_some_and(is_ambiguous),
+        runner_up_placement_change_mm: runner.map(|r| r.5),
+        symmetric: runner.as_ref().is_some_and(is_symmetric),
         settled_by: None,
     };
     let mut contenders = vec![best.2];

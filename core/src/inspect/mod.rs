@@ -766,7 +766,7 @@ fn trusted_region_fit(
     Vec<[f64; 3]>,
     Option<rim::RimFit>,
 ) {
-    let cad_rim = rim::CadRim::of(cad.mesh());
+    let cad_rim = rim::CadRim::of(cad);
     let mut rim_fit: Option<rim::RimFit> = None;
     let (mut pose, mut total) = fit_to_surface(pts, cad, start, 15, &|_, d| {
         if d.abs() < 5.0 {

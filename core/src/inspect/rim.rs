@@ -23,7 +23,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::{fit_with_edges, median};
-use crate::mesh::{SignedDistance, TriangleMesh};
+use crate::mesh::SignedDistance;
 use crate::register::Pose;
 use crate::spatial::KdTree;
 
@@ -66,21 +66,15 @@ pub(super) struct CadRim {
 }
 
 impl CadRim {
-    /// The open boundary of `mesh`: edges used by one triangle. A closed part has none.
-    pub(super) fn of(mesh: &TriangleMesh) -> CadRim {
-        let mut uses = crate::spatial::IntMap::<(u32, u32), u32>::default();
-        for tri in &mesh.triangles {
-            for k in 0..3 {
-                let (a, b) = (tri[k], tri[(k + 1) % 3]);
-                *uses.entry((a.min(b), a.max(b))).or_default() += 1;
-            }
-        }
+    /// The open boundary of the CAD: edges used by one triangle. A closed part has none.
+    pub(super) fn of(cad: &SignedDistance) -> CadRim {
+        let mesh = cad.mesh();
         let mut edges = Vec::new();
         let mut length = 0.0;
         for (t, tri) in mesh.triangles.iter().enumerate() {
             for k in 0..3 {
                 let (a, b) = (tri[k], tri[(k + 1) % 3]);
-                if uses.get(&(a.min(b), a.max(b))) == Some(&1) {
+                if cad.is_open_edge(a, b) {
                     let [pa, pb, po] = [a, b, tri[(k + 2) % 3]].map(|i| mesh.vertices[i as usize]);
                     length += (pb - pa).norm();
                     edges.push((t, pa, pb, po));
@@ -171,12 +165,12 @@ fn observe(
     s: &RimSample,
     tree: &KdTree,
     pts: &[[f64; 3]],
-    cad_from_cloud: &Pose,
+    cloud_from_cad: &Pose,
     depth: f64,
     nn: &mut Vec<(usize, f64)>,
     u: &mut Vec<f64>,
 ) -> Option<(f64, usize)> {
-    let inv = cad_from_cloud.inverse();
+    let inv = cloud_from_cad;
     let c = inv * Point3::from(s.point);
     let (m, a, n) = (
         inv.rotation * s.outward,
@@ -221,7 +215,8 @@ fn observe(
     Some((last + columns / (columns + 1.0) * g, run))
 }
 
-/// Observe every rim sample at `pose`: (sample, offset, run).
+/// Observe every rim sample at `pose` (CAD from cloud): (sample, offset, run), in the
+/// samples' order.
 fn observe_all(
     rim: &CadRim,
     tree: &KdTree,
@@ -229,12 +224,13 @@ fn observe_all(
     pose: &Pose,
     depth: f64,
 ) -> Vec<(usize, f64, usize)> {
+    let inv = pose.inverse();
     rim.samples
         .par_iter()
         .enumerate()
         .map_init(
             || (Vec::new(), Vec::new()),
-            |(nn, u), (k, s)| observe(s, tree, pts, pose, depth, nn, u).map(|(e, n)| (k, e, n)),
+            |(nn, u), (k, s)| observe(s, tree, pts, &inv, depth, nn, u).map(|(e, n)| (k, e, n)),
         )
         .flatten()
         .collect()
@@ -363,6 +359,37 @@ impl Scene<'_> {
         (c.matched().len() >= MIN_EDGES).then_some(c)
     }
 
+    /// About 3 000 of the cloud's points, for [`Scene::overhang`].
+    fn overhang_sample(&self) -> Vec<[f64; 3]> {
+        self.pts
+            .iter()
+            .step_by((self.pts.len() / 3000).max(1))
+            .copied()
+            .collect()
+    }
+
+    /// The fit of the surface alone from `start` (a placement where the scan shows no edge
+    /// on the rim).
+    fn surface_fit(&self, start: Pose) -> Pose {
+        let all = |_: &[f64; 3], _: f64| 1.0;
+        fit_with_edges(&self.fit_set, self.cad, start, 20, &all, &[]).0
+    }
+
+    /// RMS distance of the fitted points from the CAD surface at `pose` (each capped at
+    /// 5 mm), mm.
+    fn surface_rms(&self, pose: &Pose) -> f64 {
+        let sq: f64 = self
+            .fit_set
+            .par_iter()
+            .map(|p| {
+                self.cad
+                    .query(&(pose * Point3::from(*p)).coords)
+                    .map_or(25.0, |c| c.distance.abs().min(5.0).powi(2))
+            })
+            .sum();
+        (sq / self.fit_set.len().max(1) as f64).sqrt()
+    }
+
     /// Points of a sample of the cloud that `pose` puts beyond the CAD's rim by more than two
     /// point spacings (where the part has no surface).
     fn overhang(&self, pose: &Pose, sample: &[[f64; 3]]) -> usize {
@@ -388,12 +415,7 @@ impl Scene<'_> {
             .collect();
         let (centre, radius, weak) =
             super::conditioning::weak_motions(&fit_cad, self.cad, 5.0, PINS_BELOW);
-        let sample: Vec<[f64; 3]> = self
-            .pts
-            .iter()
-            .step_by((self.pts.len() / 3000).max(1))
-            .copied()
-            .collect();
+        let sample = self.overhang_sample();
         let base = self.overhang(&best.pose, &sample);
         let allowed = base + 3 + sample.len() / 1000;
         let slid = |v: &nalgebra::Vector6<f64>, t: f64| {
@@ -497,10 +519,18 @@ pub(super) fn register(
     // outline matches it turned) is a rival.
     let mut all = scene.rivals(&first);
     // A contender's placement is searched along its own slides as well: it starts where the
-    // coarse alignment left it, perhaps as far off along the surface as the first was.
-    for c in contenders.iter().filter_map(|p| scene.converge(*p)) {
-        all.extend(scene.rivals(&c));
-        all.push(c);
+    // coarse alignment left it, perhaps as far off along the surface as the first was. One
+    // whose scan reaches no rim at all is kept apart: placed there, the scan may simply end
+    // short of the rim.
+    let mut short = Vec::new();
+    for p in contenders {
+        match scene.converge(*p) {
+            Some(c) => {
+                all.extend(scene.rivals(&c));
+                all.push(c);
+            }
+            None => short.push(scene.surface_fit(*p)),
+        }
     }
     all.push(first);
     all.sort_by_key(|c| std::cmp::Reverse(c.matched().len()));
@@ -542,9 +572,8 @@ pub(super) fn register(
             let sigma = 0.5 * scene.spacing;
             let closeness = |c: &Converged, k: usize| {
                 c.obs
-                    .iter()
-                    .find(|o| o.0 == k)
-                    .map_or(0.0, |o| (-0.5 * (o.1 / sigma).powi(2)).exp())
+                    .binary_search_by_key(&k, |o| o.0)
+                    .map_or(0.0, |i| (-0.5 * (c.obs[i].1 / sigma).powi(2)).exp())
             };
             let exclusive = |x: &Converged, a: &[usize], b: &[usize]| -> f64 {
                 a.iter()
@@ -567,9 +596,34 @@ pub(super) fn register(
                 ))
         })
         .collect();
+    // A contender that fits the surface as well, puts no more of the scan past the rim and
+    // reaches no rim is not contradicted by the rim: the winner's edges may be where its
+    // coverage ends, laid on the rim by the weak motions the fit had.
+    let sample = scene.overhang_sample();
+    let (own_rms, own_past) = (
+        scene.surface_rms(&best.pose),
+        scene.overhang(&best.pose, &sample),
+    );
+    let allowed = own_past + 3 + sample.len() / 1000;
+    let mut rivals = rivals;
+    for pose in short {
+        let rel = pose * best.pose.inverse();
+        let apart = probe
+            .iter()
+            .map(|p| (pose * p - best.pose * p).norm())
+            .fold(0.0, f64::max);
+        if apart > tolerance.max(0.5)
+            && scene.surface_rms(&pose) <= 1.25 * own_rms + 0.005
+            && scene.overhang(&pose, &sample) <= allowed
+        {
+            rivals.push((apart, 0, crate::register::rotation_angle_deg(&rel) > 10.0));
+        }
+    }
+    // A slide, or any placement that reaches no rim, leaves the rim unable to pin the weak
+    // motions; a turned placement resting on the rim as well marks a symmetric outline.
     let rival = rivals
         .iter()
-        .filter(|r| !r.2)
+        .filter(|r| !r.2 || r.1 == 0)
         .max_by(|a, b| a.0.total_cmp(&b.0));
     let turned_rival = rivals.iter().any(|r| r.2);
     Some(finish(
@@ -604,11 +658,17 @@ fn finish(
         rms_mm: (used.iter().map(|e| e * e).sum::<f64>() / used.len() as f64).sqrt(),
         left_out: best.obs.len() - used.len(),
         ambiguous: rival.map(|(apart, n)| {
-            format!(
-                "the scan's edges fit the CAD's rim along {:.0} mm, but also along {:.0} mm with the points placed up to {apart:.1} mm elsewhere: where the scan ends short of the rim cannot be told from where the part ends",
-                used.len() as f64 * rim.spacing,
-                n as f64 * rim.spacing
-            )
+            let seen = used.len() as f64 * rim.spacing;
+            if n == 0 {
+                format!(
+                    "the scan's edges fit the CAD's rim along {seen:.0} mm, but the surface fits as well with the points placed up to {apart:.1} mm elsewhere, where they reach no rim: where the scan ends short of the rim cannot be told from where the part ends"
+                )
+            } else {
+                format!(
+                    "the scan's edges fit the CAD's rim along {seen:.0} mm, but also along {:.0} mm with the points placed up to {apart:.1} mm elsewhere: where the scan ends short of the rim cannot be told from where the part ends",
+                    n as f64 * rim.spacing
+                )
+            }
         }),
     };
     tracing::debug!(?summary, spacing = scene.spacing, "rim-aware fit");
@@ -636,11 +696,12 @@ fn point_spacing(pts: &[[f64; 3]], tree: &KdTree) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::mesh::TriangleMesh;
 
     #[test]
     fn a_sheets_rim_is_sampled_with_outward_normals_in_its_plane() {
         let mesh = TriangleMesh::height_field(20, 10, (-50.0, 50.0), (-25.0, 25.0), |_, _| 0.0);
-        let rim = CadRim::of(&mesh);
+        let rim = CadRim::of(&SignedDistance::new(mesh));
         let perimeter = 2.0 * (100.0 + 50.0);
         let count = rim.samples.len() as f64;
         assert!(
@@ -662,7 +723,7 @@ mod tests {
             ],
             triangles: vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
         };
-        assert!(CadRim::of(&tetra).is_empty());
+        assert!(CadRim::of(&SignedDistance::new(tetra)).is_empty());
     }
 
     #[test]

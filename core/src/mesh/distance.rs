@@ -93,6 +93,14 @@ impl SignedDistance {
         self.bvh.mesh()
     }
 
+    /// Whether the edge between vertices `a` and `b` is used by one triangle only: the
+    /// surface's open boundary (a sheet's rim, a hole cut through it).
+    pub fn is_open_edge(&self, a: u32, b: u32) -> bool {
+        self.edge_normals
+            .get(&edge_key(a, b))
+            .is_some_and(|&(_, count)| count == 1)
+    }
+
     /// Signed distance of `p` to the mesh.
     pub fn query(&self, p: &Vec3) -> Option<Closest> {
         self.query_near(p, u32::MAX)

@@ -51,6 +51,14 @@ pub enum Error {
     /// A computation had too little usable data (e.g. no valid pixels in a reference).
     #[error("{0}")]
     Insufficient(String),
+    /// A stage was stopped by its [`crate::budget::Budget`]: cancelled or past its deadline.
+    #[error("{stage}: {why}")]
+    Interrupted {
+        /// The stage, as its budget names it.
+        stage: String,
+        /// Cancelled, or the deadline it passed.
+        why: crate::budget::Interruption,
+    },
 }
 
 /// Result alias of the core library.

@@ -7,6 +7,7 @@
 //! captures of known scenes so that every stage can be checked against ground truth.
 //! Conventions (frames, units, pixel centres) are those of the project's SPEC §2.
 
+pub mod budget;
 pub mod calibrate;
 pub mod capture;
 pub mod cloud;

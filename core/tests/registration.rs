@@ -102,3 +102,45 @@ fn point_to_point_recovers_a_reposed_part_of_the_same_scan() {
         "rotation {rot}°, translation {trans} mm"
     );
 }
+
+#[test]
+fn an_alignment_out_of_budget_stops_at_its_next_iteration() {
+    use ris_core::budget::{self, Budget};
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::Arc;
+    let fixed = sample(20_000, -100.0, 60.0, -80.0, 80.0, 0.03, 1);
+    let moved = Pose::new(
+        Vector3::new(4.0, -3.0, 1.5),
+        Vector3::new(0.01, -0.02, 0.04),
+    );
+    let moving: Vec<[f64; 3]> = fixed
+        .iter()
+        .map(|p| (moved.inverse() * Point3::from(*p)).coords.into())
+        .collect();
+    let icp = Icp::new(&fixed, IcpMetric::PointToPlane, 12);
+    let params = IcpParams {
+        max_iterations: 200,
+        tolerance: 0.0,
+        ..IcpParams::default()
+    };
+    let free = icp.align(&moving, Pose::identity(), &params);
+    assert!(free.iterations >= 3, "{free:?}");
+    // Under a budget whose stop flag is raised the alignment ends before its next iteration,
+    // unconverged where it was, and the stage's check names why.
+    let stop = Arc::new(AtomicBool::new(false));
+    let budget = Budget::new("registration test").stop_flag(stop.clone());
+    let (before, stopped, e) = budget::within(budget, || {
+        let before = icp.align(&moving, Pose::identity(), &params);
+        stop.store(true, Ordering::SeqCst);
+        let stopped = icp.align(&moving, Pose::identity(), &params);
+        (before, stopped, budget::check().expect_err("stopped"))
+    });
+    assert_eq!(
+        before.iterations, free.iterations,
+        "a budget not spent changes nothing"
+    );
+    assert_eq!(stopped.iterations, 0);
+    assert!(!stopped.converged);
+    assert_eq!(e.to_string(), "registration test: cancelled");
+    assert!(budget::check().is_ok(), "the budget ended with its stage");
+}

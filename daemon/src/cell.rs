@@ -42,6 +42,12 @@ pub struct Cell {
     pub parts: Vec<Part>,
     keep_captures: bool,
     e57: bool,
+    stage_deadline: std::time::Duration,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    /// Fault injection for tests: the named computing stage of every scan runs until its
+    /// deadline ends it (set from `RISD_INJECT_HANG` in a build with `fault-injection`).
+    #[doc(hidden)]
+    pub hang_in: Option<String>,
 }
 
 impl Cell {
@@ -65,7 +71,16 @@ impl Cell {
             parts,
             keep_captures: config.storage.keep_captures,
             e57: config.storage.e57,
+            stage_deadline: config.workers.stage_deadline(),
+            stop: Default::default(),
+            hang_in: injected_hang(),
         })
+    }
+
+    /// Stop a running scan's computing stage at its next iteration once `flag` is raised (risd
+    /// raises it when stopping); the scan then fails as cancelled.
+    pub fn stop_with(&mut self, flag: std::sync::Arc<std::sync::atomic::AtomicBool>) {
+        self.stop = flag;
     }
 
     /// Scan into `<data_dir>/scans/<scan_id>` (see [`scan::run`]). Pairs whose camera was
@@ -95,6 +110,9 @@ impl Cell {
             operator: job.operator.as_deref(),
             mode: job.mode,
             notes: &job.notes,
+            stage_deadline: Some(self.stage_deadline),
+            stop: Some(&self.stop),
+            hang_in: self.hang_in.as_deref(),
         };
         scan::run(
             &self.name,
@@ -132,4 +150,14 @@ impl Cell {
             })
             .collect()
     }
+}
+
+#[cfg(feature = "fault-injection")]
+fn injected_hang() -> Option<String> {
+    std::env::var("RISD_INJECT_HANG").ok()
+}
+
+#[cfg(not(feature = "fault-injection"))]
+fn injected_hang() -> Option<String> {
+    None
 }

@@ -118,6 +118,22 @@ pub struct WorkersSection {
     /// Scans that may wait behind the running one; more are refused.
     #[serde(default = "four")]
     pub queue: usize,
+    /// Longest a scan's computing stage (one sensor's reconstruction, the inspection) may run,
+    /// s: past it the stage stops at its next iteration and the scan fails naming it. Within
+    /// 1 … 86 400; the default 600 is far above a healthy stage (seconds).
+    #[serde(default = "stage_deadline")]
+    pub stage_deadline_s: f64,
+}
+
+fn stage_deadline() -> f64 {
+    crate::scan::STAGE_DEADLINE.as_secs_f64()
+}
+
+impl WorkersSection {
+    /// [`WorkersSection::stage_deadline_s`] as a duration.
+    pub fn stage_deadline(&self) -> std::time::Duration {
+        std::time::Duration::from_secs_f64(self.stage_deadline_s)
+    }
 }
 
 impl Default for WorkersSection {
@@ -125,6 +141,7 @@ impl Default for WorkersSection {
         WorkersSection {
             threads: 0,
             queue: four(),
+            stage_deadline_s: stage_deadline(),
         }
     }
 }
@@ -677,6 +694,15 @@ impl CellConfig {
             return Err(field(
                 "workers.threads",
                 format!("{} must be within 0 … {MAX_THREADS}", file.workers.threads),
+            ));
+        }
+        if !(1.0..=86_400.0).contains(&file.workers.stage_deadline_s) {
+            return Err(field(
+                "workers.stage_deadline_s",
+                format!(
+                    "{} must be within 1 … 86400 s",
+                    file.workers.stage_deadline_s
+                ),
             ));
         }
         if file.sensor.is_empty() {

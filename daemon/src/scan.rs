@@ -5,11 +5,13 @@
 //! crash never leaves a scan that looks finished.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
 use std::sync::mpsc;
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Context, Result};
+use ris_core::budget::{self, Budget};
 use ris_core::capture::CaptureSet;
 use ris_core::cloud::{Merger, PointCloud};
 use ris_core::decode::{decode, DecodeParams};
@@ -236,6 +238,51 @@ pub struct ScanOptions<'a> {
     pub mode: ScanMode,
     /// What the inspection report must carry besides the scan's own warnings.
     pub notes: &'a [String],
+    /// Longest a computing stage may run (`None`: [`STAGE_DEADLINE`]).
+    pub stage_deadline: Option<Duration>,
+    /// Raised when the running stage must stop (risd stopping): it ends at its next iteration.
+    pub stop: Option<&'a Arc<AtomicBool>>,
+    /// Fault injection for tests: the named stage (`reconstruction`, `inspection`) runs until
+    /// its budget ends it, as a stage whose parameters ask for endless work would; prefixed
+    /// `stuck:`, it never ends (a loop without a check, a driver call that never returns).
+    #[doc(hidden)]
+    pub hang_in: Option<&'a str>,
+}
+
+impl ScanOptions<'_> {
+    /// The budget of `stage`: the scan's stage deadline and stop flag.
+    fn budget(&self, stage: String) -> Budget {
+        let b = Budget::new(stage).deadline(self.stage_deadline());
+        match self.stop {
+            Some(stop) => b.stop_flag(stop.clone()),
+            None => b,
+        }
+    }
+
+    fn stage_deadline(&self) -> Duration {
+        self.stage_deadline.unwrap_or(STAGE_DEADLINE)
+    }
+
+    /// The injected hang of `stage`, if this scan has one: work that never ends by itself.
+    fn injected_hang(&self, stage: &str) -> ris_core::Result<()> {
+        let Some(hang) = self.hang_in else {
+            return Ok(());
+        };
+        if hang.strip_prefix("stuck:") == Some(stage) {
+            tracing::warn!(stage, "injected fault: the stage never ends");
+            loop {
+                std::thread::park();
+            }
+        }
+        if hang == stage {
+            tracing::warn!(stage, "injected fault: the stage runs until its deadline");
+            loop {
+                budget::check()?;
+                std::thread::sleep(Duration::from_millis(10));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Scan with the pairs `options` selects and write the result into
@@ -393,34 +440,52 @@ fn scan_into(
                 let one = single
                     .as_ref()
                     .filter(|o| options.mode == ScanMode::SingleShot || o.is_omni());
-                let (cloud, c1) = if let Some(one) = one {
-                    let image = capture
-                        .frame(Pattern::White)
-                        .ok_or_else(|| anyhow!("sensor {name}: the single frame is missing"))?;
-                    let f = one
-                        .measure(image)
-                        .with_context(|| format!("sensor {name}: decoding its one frame"))?;
-                    // What an operator looks at: the fusion image, or an omni sensor's panorama.
-                    let (png, _) = one
-                        .picture(image, &f, *range_mm)
-                        .with_context(|| format!("sensor {name}: its picture"))?;
-                    ris_core::io::write_atomic(&dir.join(format!("{name}.png")), &png)
-                        .with_context(|| format!("writing the picture of {name}"))?;
-                    (f.cloud, c0 + f.decode_s)
-                } else if options.mode == ScanMode::SingleShot {
-                    return Err(anyhow!("sensor {name}: no single-shot set-up"));
-                } else {
-                    let rec = rec
-                        .as_ref()
-                        .ok_or_else(|| anyhow!("sensor {name}: no Gray-code sensor model"))?;
-                    let decoded = decode(&capture, &DecodeParams::default())
-                        .with_context(|| format!("sensor {name}: decoding"))?;
-                    let c1 = secs();
-                    let cloud = rec
-                        .reconstruct(&decoded)
-                        .with_context(|| format!("sensor {name}: reconstruction"))?;
-                    (cloud, c1)
+                let stage = format!("sensor {name}: reconstruction");
+                let reconstructing = ScanState::Reconstructing {
+                    sensor: name.clone(),
                 };
+                // Its state told every STAGE_BEAT while it runs (the worker's heartbeat), as
+                // long as the stage keeps within its deadline.
+                let (cloud, c1) = while_running(
+                    &stage,
+                    &|| state(&reconstructing),
+                    STAGE_BEAT,
+                    options.stage_deadline() + STAGE_GRACE,
+                    || {
+                        budget::within(options.budget(stage.clone()), || -> Result<_> {
+                            options.injected_hang("reconstruction")?;
+                            Ok(if let Some(one) = one {
+                                let image = capture.frame(Pattern::White).ok_or_else(|| {
+                                    anyhow!("sensor {name}: the single frame is missing")
+                                })?;
+                                let f = one.measure(image).with_context(|| {
+                                    format!("sensor {name}: decoding its one frame")
+                                })?;
+                                // What an operator looks at: the fusion image, or an omni sensor's panorama.
+                                let (png, _) = one
+                                    .picture(image, &f, *range_mm)
+                                    .with_context(|| format!("sensor {name}: its picture"))?;
+                                ris_core::io::write_atomic(&dir.join(format!("{name}.png")), &png)
+                                    .with_context(|| format!("writing the picture of {name}"))?;
+                                (f.cloud, c0 + f.decode_s)
+                            } else if options.mode == ScanMode::SingleShot {
+                                return Err(anyhow!("sensor {name}: no single-shot set-up"));
+                            } else {
+                                let rec = rec.as_ref().ok_or_else(|| {
+                                    anyhow!("sensor {name}: no Gray-code sensor model")
+                                })?;
+                                let decoded = decode(&capture, &DecodeParams::default())
+                                    .with_context(|| format!("sensor {name}: decoding"))?;
+                                let c1 = secs();
+                                budget::check()?;
+                                let cloud = rec
+                                    .reconstruct(&decoded)
+                                    .with_context(|| format!("sensor {name}: reconstruction"))?;
+                                (cloud, c1)
+                            })
+                        })
+                    },
+                )?;
                 drop(capture);
                 let c2 = secs();
                 merger.add(&cloud, to_common);
@@ -559,7 +624,7 @@ fn scan_into(
             dir,
             &secs,
             state,
-            options.mode,
+            &options,
             &warnings,
         )?),
         None => None,
@@ -727,9 +792,13 @@ fn acquire_pair(
 
 /// How often a stage that cannot be interrupted tells its state again.
 pub const STAGE_BEAT: std::time::Duration = std::time::Duration::from_secs(2);
-/// How long such a stage keeps telling it: past this the stage counts as hung, its state goes
-/// quiet, and the worker's heartbeat with it (systemd's watchdog then restarts risd).
+/// The default deadline of a computing stage (`[workers] stage_deadline_s`): past it the stage
+/// stops at its next iteration and the scan fails naming it.
 pub const STAGE_DEADLINE: std::time::Duration = std::time::Duration::from_secs(600);
+/// How long past its deadline a stage keeps telling its state: a stage still running then did
+/// not stop by itself (a loop without a budget check, a stuck driver) and counts as hung; its
+/// state goes quiet, and the worker's heartbeat with it (systemd's watchdog restarts risd).
+pub const STAGE_GRACE: std::time::Duration = std::time::Duration::from_secs(10);
 
 /// Run `work` on this thread while another calls `tell` every `every`, until `work` returns or
 /// `deadline` passes (then `stage` is logged as overdue and `tell` is no longer called).
@@ -775,9 +844,10 @@ fn inspect_part(
     dir: &Path,
     secs: &dyn Fn() -> f64,
     state: &(dyn Fn(&ScanState) + Sync),
-    mode: ScanMode,
+    options: &ScanOptions,
     notes: &[String],
 ) -> Result<InspectionSummary> {
+    let mode = options.mode;
     state(&ScanState::Inspecting {
         part: part.id.clone(),
     });
@@ -807,18 +877,25 @@ fn inspect_part(
         characteristics: part.characteristics.clone(),
         ..InspectParams::default()
     };
-    // The inspection cannot be interrupted: while it runs (up to STAGE_DEADLINE) its state is
-    // told again every STAGE_BEAT, which keeps the worker's heartbeat and the clients' progress
-    // alive.
+    // While the inspection runs its state is told again every STAGE_BEAT, which keeps the
+    // worker's heartbeat and the clients' progress alive; it stops at its next iteration once
+    // past the stage deadline or told to stop. One that does not (a loop without a check)
+    // goes quiet a grace period later, and the watchdog restarts risd.
     let inspecting = ScanState::Inspecting {
         part: part.id.clone(),
     };
+    let stage = format!("inspection of part {}", part.id);
     let mut r = while_running(
         "inspection",
         &|| state(&inspecting),
         STAGE_BEAT,
-        STAGE_DEADLINE,
-        || inspect(&points, &part.cad, &params),
+        options.stage_deadline() + STAGE_GRACE,
+        || {
+            budget::within(options.budget(stage), || {
+                options.injected_hang("inspection")?;
+                inspect(&points, &part.cad, &params)
+            })
+        },
     )
     .with_context(|| {
         let mut why = format!("inspecting part {}", part.id);

@@ -397,3 +397,240 @@ fn huge_request_bodies_are_dropped_before_they_fill_memory() {
     let (status, lines) = risd.terminate();
     assert!(status.success(), "{lines:#?}");
 }
+
+/// The tiny cell with a part (the mock cell's panel) and a one-second stage deadline.
+fn tiny_cell_with_deadline(dir: &Path) -> PathBuf {
+    let path = tiny_cell(dir);
+    let mut text = std::fs::read_to_string(&path).expect("cell file");
+    text = text.replacen(
+        "[[sensor]]",
+        "[workers]\nstage_deadline_s = 1\n[[sensor]]",
+        1,
+    );
+    text += &format!(
+        "[[part]]\nid = \"panel\"\ncad = \"{}\"\ntolerance = 0.5\n",
+        config_dir().join("mock-cell/panel.stl").display()
+    );
+    std::fs::write(&path, text).expect("cell file");
+    path
+}
+
+/// A computing stage that does not end by itself (injected: it runs until its budget stops
+/// it) fails its scan naming the stage once past the cell's stage deadline, or as cancelled as
+/// soon as the stop flag is raised; nothing unfinished is left and the next scan succeeds.
+#[test]
+fn a_hung_stage_ends_at_its_deadline_or_when_stopped_and_the_next_scan_succeeds() {
+    use ris_daemon::cell::{Cell, ScanJob};
+    use ris_daemon::protocol::ScanState;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::{Arc, Mutex};
+    let tmp = tempfile::tempdir().expect("tmp");
+    let config =
+        ris_daemon::config::CellConfig::load(&tiny_cell_with_deadline(tmp.path())).expect("config");
+    let mut cell = Cell::prepare(&config, 5, &|_, _, _| {}).expect("cell");
+    let data = tmp.path().join("data");
+    let inspect = ScanJob {
+        part: Some(0),
+        ..ScanJob::default()
+    };
+    // When each state was first told.
+    let told = Mutex::new(Vec::<(String, Instant)>::new());
+    let record = |s: &ScanState| {
+        let name = serde_json::to_value(s).expect("json")["state"]
+            .as_str()
+            .unwrap_or_default()
+            .to_string();
+        let mut v = told.lock().expect("told");
+        if v.last().is_none_or(|l| l.0 != name) {
+            v.push((name, Instant::now()));
+        }
+    };
+    let since = |state: &str| {
+        told.lock()
+            .expect("told")
+            .iter()
+            .find(|t| t.0 == state)
+            .map(|t| t.1.elapsed())
+            .unwrap_or_else(|| panic!("no {state} state"))
+    };
+
+    // Past the deadline (1 s): the reconstruction ends at its next check.
+    cell.hang_in = Some("reconstruction".into());
+    let e = cell
+        .scan(&inspect, &data, "a", &|| false, &record)
+        .expect_err("a hung reconstruction fails its scan");
+    let took = since("reconstructing");
+    let msg = format!("{e:#}");
+    assert!(
+        msg.contains("sensor s1: reconstruction: past its deadline of 1.0 s"),
+        "{msg}"
+    );
+    assert!(
+        took >= Duration::from_secs(1) && took < Duration::from_secs(3),
+        "the stage ran {took:?} against a 1 s deadline"
+    );
+    assert!(!data.join("scans/a.partial").exists() && !data.join("scans/a").exists());
+
+    // Stopped (risd stopping) 0.3 s into a hung inspection: it ends within a second.
+    let stop = Arc::new(AtomicBool::new(false));
+    cell.stop_with(stop.clone());
+    cell.hang_in = Some("inspection".into());
+    told.lock().expect("told").clear();
+    let raised = Mutex::new(None::<Instant>);
+    let e = std::thread::scope(|scope| {
+        scope.spawn(|| {
+            let t = Instant::now();
+            while !told
+                .lock()
+                .expect("told")
+                .iter()
+                .any(|s| s.0 == "inspecting")
+            {
+                assert!(t.elapsed() < Duration::from_secs(60), "no inspection");
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            std::thread::sleep(Duration::from_millis(300));
+            *raised.lock().expect("raised") = Some(Instant::now());
+            stop.store(true, Ordering::SeqCst);
+        });
+        cell.scan(&inspect, &data, "b", &|| false, &record)
+            .expect_err("a stopped inspection fails its scan")
+    });
+    let after = raised
+        .lock()
+        .expect("raised")
+        .expect("stop raised")
+        .elapsed();
+    let msg = format!("{e:#}");
+    assert!(msg.contains("inspection of part panel: cancelled"), "{msg}");
+    assert!(
+        after < Duration::from_secs(1),
+        "ended {after:?} after the stop"
+    );
+    assert!(!data.join("scans/b.partial").exists() && !data.join("scans/b").exists());
+
+    // The same cell scans again.
+    stop.store(false, Ordering::SeqCst);
+    cell.hang_in = None;
+    let (report, dir) = cell
+        .scan(&ScanJob::default(), &data, "c", &|| false, &record)
+        .expect("the next scan succeeds");
+    assert!(report.sensors[0].points > 1000, "{:?}", report.sensors);
+    assert!(dir.join("merged.ply").exists());
+}
+
+/// risd with a stage stuck for good (injected in a `fault-injection` build: it never checks its
+/// budget): the worker's heartbeat is fed while the stage is within its deadline and a grace
+/// period, then goes quiet so the systemd watchdog starves (the only case it does); SIGTERM
+/// still ends risd within 2 s, and the next start removes the unfinished scan.
+#[test]
+fn a_stuck_stage_starves_the_watchdog_and_sigterm_still_ends_risd_promptly() {
+    use std::os::unix::net::UnixDatagram;
+    let tmp = tempfile::tempdir().expect("tmp");
+    let config = tiny_cell_with_deadline(tmp.path());
+    let data = tmp.path().join("data");
+    let socket = tmp.path().join("notify");
+    let listener = UnixDatagram::bind(&socket).expect("notify socket");
+    listener
+        .set_read_timeout(Some(Duration::from_millis(200)))
+        .expect("timeout");
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let args: Vec<&OsStr> = vec![
+        "--config".as_ref(),
+        config.as_os_str(),
+        "--listen".as_ref(),
+        endpoint.as_ref(),
+        "--data-dir".as_ref(),
+        data.as_os_str(),
+    ];
+    let socket_s = socket.display().to_string();
+    let start_risd = |hang: &str| {
+        Risd::start_env(
+            &args,
+            &[
+                ("NOTIFY_SOCKET", &socket_s),
+                // systemd's WatchdogSec=2: risd pings every second while its worker is alive.
+                ("WATCHDOG_USEC", "2000000"),
+                ("RISD_INJECT_HANG", hang),
+            ],
+        )
+    };
+    let mut risd = start_risd("stuck:reconstruction");
+    risd.wait_ready(Duration::from_secs(120));
+    // Every WATCHDOG=1 datagram's arrival.
+    let pings = std::sync::Mutex::new(Vec::<Instant>::new());
+    let done = std::sync::atomic::AtomicBool::new(false);
+    std::thread::scope(|scope| {
+        scope.spawn(|| {
+            let mut buf = [0u8; 256];
+            while !done.load(std::sync::atomic::Ordering::SeqCst) {
+                if let Ok(n) = listener.recv(&mut buf) {
+                    if buf[..n].windows(10).any(|w| w == b"WATCHDOG=1") {
+                        pings.lock().expect("pings").push(Instant::now());
+                    }
+                }
+            }
+        });
+        let count = |from: Instant, to: Instant| {
+            pings
+                .lock()
+                .expect("pings")
+                .iter()
+                .filter(|t| **t >= from && **t < to)
+                .count()
+        };
+        let session = client(&endpoint);
+        let (_sub, states) = states(&session, "tiny");
+        let idle = Instant::now();
+        std::thread::sleep(Duration::from_secs(3));
+        assert!(
+            count(idle, Instant::now()) >= 2,
+            "an idle risd feeds the watchdog"
+        );
+        let replies = ask(&session, "ris/tiny/scan", Some("{}"));
+        let v: serde_json::Value =
+            serde_json::from_str(replies[0].as_ref().expect("accepted")).expect("json");
+        let id = v["scan_id"].as_str().expect("id").to_string();
+        let t = Instant::now();
+        let stage = loop {
+            if let Ok((i, s)) = states.recv_timeout(Duration::from_millis(100)) {
+                if i == id && s["state"] == "reconstructing" {
+                    break Instant::now();
+                }
+            }
+            assert!(t.elapsed() < Duration::from_secs(60), "no reconstruction");
+        };
+        // Deadline 1 s + grace 10 s: fed until then, starved after (two missed pings).
+        std::thread::sleep(Duration::from_secs(15));
+        let fed = count(stage, stage + Duration::from_secs(10));
+        let starved = count(stage + Duration::from_secs(13), Instant::now());
+        assert!(
+            fed >= 8,
+            "{fed} pings while the stage was within its deadline"
+        );
+        assert_eq!(starved, 0, "pings went on past the stuck stage's grace");
+        assert!(data.join(format!("scans/{id}.partial")).exists());
+        let _ = session.close().wait();
+        let t = Instant::now();
+        let (status, log) = risd.terminate();
+        let took = t.elapsed();
+        done.store(true, std::sync::atomic::Ordering::SeqCst);
+        assert!(
+            took < Duration::from_secs(2),
+            "SIGTERM took {took:?}: {log:#?}"
+        );
+        assert!(status.success(), "{log:#?}");
+        assert!(
+            log.iter().any(|l| l.contains("did not stop in time")),
+            "{log:#?}"
+        );
+    });
+    // The next start sweeps the unfinished scan away.
+    let mut risd = start_risd("");
+    risd.wait_ready(Duration::from_secs(120));
+    assert!(finished_scans(&data)
+        .iter()
+        .all(|s| !s.ends_with(".partial")));
+    let (status, log) = risd.terminate();
+    assert!(status.success(), "{log:#?}");
+}

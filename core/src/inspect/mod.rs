@@ -178,6 +178,7 @@ pub fn inspect(
             (p, Some(a), c)
         }
     };
+    crate::budget::check()?;
     let framed = params.datums.iter().any(|d| d.order.is_some());
     let mut measurements = Vec::new();
     let mut frame_conditioning = None;
@@ -221,8 +222,10 @@ pub fn inspect(
     } else {
         datum_fit(&fit, cad, start, params)
     };
+    crate::budget::check()?;
     let points = to_cad(cloud, &pose);
     let (deviations, outside) = inspected_deviations(&points, cad, params);
+    crate::budget::check()?;
     let (coverage, near) = surface_coverage(&points, &deviations, cad, params, &pose);
     // What the fit used: the datum regions when the part has datums, else the surface; a
     // datum frame states its own.

@@ -110,6 +110,10 @@ impl Icp {
             IcpMetric::PointToPoint
         };
         for n in 0..params.max_iterations {
+            // A stage out of budget stops here, unconverged; its caller's check says why.
+            if crate::budget::spent() {
+                break;
+            }
             let res = if params.multiresolution {
                 1usize << 4usize.saturating_sub(n)
             } else {

@@ -221,11 +221,12 @@ pub async fn run(config: CellConfig, session: Session, shutdown: CancellationTok
             _ = shutdown.cancelled() => break Ok(()),
             done = &mut preparation, if !prepared => {
                 prepared = true;
-                let cell_ready = match done {
+                let mut cell_ready = match done {
                     Ok(Ok(c)) => c,
                     Ok(Err(e)) => break Err(e.context("preparing the cell")),
                     Err(e) => break Err(anyhow!("preparing the cell: {e}")),
                 };
+                cell_ready.stop_with(stopping.clone());
                 let (w_session, w_status, w_stopping, beat, w_cell, w_data_dir, storage) = (
                     session.clone(),
                     status.clone(),
@@ -351,11 +352,25 @@ pub async fn run(config: CellConfig, session: Session, shutdown: CancellationTok
     streams.stop();
     stopping.store(true, Ordering::SeqCst);
     drop(tx);
+    // The running stage stops at its next iteration; one that does not (stuck in a driver or
+    // a loop without a check) is left behind: risd exits anyway, and its unfinished scan is
+    // removed at the next start.
     if let Some(worker) = worker {
-        tokio::task::spawn_blocking(move || worker.join())
-            .await
-            .context("joining the scan worker")?
-            .map_err(|_| anyhow!("the scan worker panicked"))?;
+        // Joined on a thread of its own, not the runtime's blocking pool: the runtime's shutdown
+        // would wait for a worker left behind.
+        let (joined_tx, joined) = tokio::sync::oneshot::channel();
+        std::thread::spawn(move || {
+            let _ = joined_tx.send(worker.join());
+        });
+        match tokio::time::timeout(STOP_WAIT, joined).await {
+            Ok(joined) => joined
+                .context("joining the scan worker")?
+                .map_err(|_| anyhow!("the scan worker panicked"))?,
+            Err(_) => tracing::error!(
+                wait_s = STOP_WAIT.as_secs_f64(),
+                "the running scan did not stop in time: risd exits without it"
+            ),
+        }
     }
     if let Some(w) = watchdog {
         w.abort();
@@ -375,6 +390,10 @@ pub async fn run(config: CellConfig, session: Session, shutdown: CancellationTok
     tracing::info!("risd stopped");
     Ok(())
 }
+
+/// How long stopping waits for the running scan to end (SIGTERM ends risd within about this
+/// and the Zenoh session's close).
+const STOP_WAIT: Duration = Duration::from_millis(1000);
 
 fn set_state(status: &Mutex<Health>, state: &str) {
     if let Ok(mut s) = status.lock() {

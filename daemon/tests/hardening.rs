@@ -634,3 +634,237 @@ fn a_stuck_stage_starves_the_watchdog_and_sigterm_still_ends_risd_promptly() {
     let (status, log) = risd.terminate();
     assert!(status.success(), "{log:#?}");
 }
+
+/// The numeric leaves of a TOML document: (path, as `a.b[2].c`).
+fn numeric_leaves(v: &toml::Value, path: &str, out: &mut Vec<String>) {
+    match v {
+        toml::Value::Integer(_) | toml::Value::Float(_) => out.push(path.to_string()),
+        toml::Value::Table(t) => {
+            for (k, x) in t {
+                let p = if path.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{path}.{k}")
+                };
+                numeric_leaves(x, &p, out);
+            }
+        }
+        toml::Value::Array(a) => {
+            for (i, x) in a.iter().enumerate() {
+                numeric_leaves(x, &format!("{path}[{i}]"), out);
+            }
+        }
+        _ => {}
+    }
+}
+
+/// The leaf at `path` (as [`numeric_leaves`] names it).
+fn leaf_mut<'a>(v: &'a mut toml::Value, path: &str) -> &'a mut toml::Value {
+    let mut v = v;
+    for part in path.split('.') {
+        let (key, indices) = match part.find('[') {
+            Some(i) => (&part[..i], &part[i..]),
+            None => (part, ""),
+        };
+        v = &mut v[key];
+        for index in indices.split(['[', ']']).filter(|s| !s.is_empty()) {
+            v = &mut v[index.parse::<usize>().expect("index")];
+        }
+    }
+    v
+}
+
+/// Extreme values for a leaf of this kind.
+fn extremes(leaf: &toml::Value) -> Vec<toml::Value> {
+    use toml::Value::{Float, Integer};
+    match leaf {
+        Integer(_) => vec![
+            Integer(0),
+            Integer(-1),
+            Integer(4_294_967_296),
+            Integer(i64::MAX),
+            Integer(i64::MIN),
+        ],
+        _ => vec![
+            Float(0.0),
+            Float(-1.0),
+            Float(1e9),
+            Float(1e300),
+            Float(-1e300),
+            Float(f64::NAN),
+            Float(f64::INFINITY),
+            Float(1e-300),
+        ],
+    }
+}
+
+/// `risd ARGS` under a 4 GB address-space limit, at most `limit`.
+fn risd_bounded(args: &[&OsStr], limit: Duration) -> std::process::Output {
+    let mut command = std::process::Command::new("sh");
+    command
+        .arg("-c")
+        .arg("ulimit -v 4000000; exec \"$0\" \"$@\"")
+        .arg(common::binary("risd"))
+        .args(args)
+        .env("NO_COLOR", "1");
+    common::output_within(&mut command, limit)
+}
+
+/// Every numeric field of a cell file, its scene and its part's datums set to extreme values
+/// (zero, negative, 1e9, ±1e300, NaN, infinity, 1e-300; integers to 0, -1, 2^32 and the i64
+/// limits), one field at a time, seeded (one value per field in the default tier, every value
+/// in the long tier): `risd --check-config` ends within 30 s under a 4 GB address-space limit,
+/// without a panic or a signal, and either accepts the files or refuses them naming the file
+/// and the field. Of the accepted extreme cases a seeded handful (all in the long tier) is
+/// scanned with `risd --once` under the same memory limit: it ends within 120 s, done or
+/// failed with its reason, never killed.
+#[test]
+fn extreme_values_in_every_numeric_field_are_refused_by_name_or_run_bounded() {
+    let long = std::env::var("RIS_TIER").is_ok_and(|v| v == "long");
+    let tmp = tempfile::tempdir().expect("tmp");
+    let dir = tmp.path();
+    let files: Vec<(&str, String)> = vec![
+        (
+            "cell.toml",
+            format!(
+                "[cell]\nname = \"extreme\"\n[storage]\nkeep_scans = 2\nmax_age_days = 30\n[workers]\nthreads = 0\nqueue = 4\nstage_deadline_s = 30.0\n[[sensor]]\nname = \"s1\"\nbackend = \"mock\"\nscene = \"scene.toml\"\nexposure_us = 10000.0\nsettle_ms = 0.0\nframe_timeout_ms = 2000.0\nrange_mm = [300.0, 3000.0]\nto_common = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]\n[[part]]\nid = \"panel\"\ncad = \"{}\"\ndatums = \"datums.toml\"\ntolerance = 0.5\nmin_coverage = 0.0\n[single_shot]\nstep = [12, 12]\nseed = 7\nrange_mm = [300.0, 3000.0]\nrate_hz = 2.0\n",
+                config_dir().join("mock-cell/panel.stl").display()
+            ),
+        ),
+        (
+            "scene.toml",
+            std::fs::read_to_string(config_dir().join("scenes/tiny.toml")).expect("scene"),
+        ),
+        (
+            "datums.toml",
+            std::fs::read_to_string(config_dir().join("mock-cell/panel-datums.toml"))
+                .expect("datums"),
+        ),
+    ];
+    let write_all = |changed: Option<(&str, &str)>| {
+        for (name, text) in &files {
+            let text = match changed {
+                Some((n, t)) if n == *name => t,
+                _ => text.as_str(),
+            };
+            std::fs::write(dir.join(name), text).expect("write");
+        }
+    };
+    write_all(None);
+    let cell = dir.join("cell.toml");
+    let check = |limit| risd_bounded(&["--check-config".as_ref(), cell.as_os_str()], limit);
+    let base = check(Duration::from_secs(30));
+    assert!(
+        base.status.success(),
+        "the unchanged files: {}",
+        String::from_utf8_lossy(&base.stderr)
+    );
+    let mut rng = 0x5EED_u64;
+    let mut next = move |n: usize| {
+        rng = rng
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        ((rng >> 33) % n as u64) as usize
+    };
+    let (mut cases, mut refused) = (0usize, 0usize);
+    let mut accepted: Vec<(String, String, String)> = Vec::new();
+    for (name, text) in &files {
+        let doc: toml::Value = toml::from_str(text).expect("toml");
+        let mut leaves = Vec::new();
+        numeric_leaves(&doc, "", &mut leaves);
+        assert!(!leaves.is_empty(), "{name}");
+        for leaf in &leaves {
+            let values = extremes(leaf_mut(&mut doc.clone(), leaf));
+            let chosen: Vec<toml::Value> = if long {
+                values
+            } else {
+                vec![values[next(values.len())].clone()]
+            };
+            for value in chosen {
+                let mut changed = doc.clone();
+                *leaf_mut(&mut changed, leaf) = value.clone();
+                let text = toml::to_string(&changed).expect("toml");
+                write_all(Some((name, &text)));
+                let out = check(Duration::from_secs(30));
+                let err = String::from_utf8_lossy(&out.stderr);
+                let shown = match &value {
+                    toml::Value::Float(f) => format!("{f:e}"),
+                    v => v.to_string(),
+                };
+                let case = format!("{name} {leaf} = {shown}");
+                cases += 1;
+                assert!(
+                    out.status.code().is_some() && !err.contains("panicked"),
+                    "{case}: {:?} {err}",
+                    out.status
+                );
+                if out.status.success() {
+                    accepted.push((name.to_string(), text, case));
+                    continue;
+                }
+                refused += 1;
+                // The field as the message may name it: its last key (a matrix element is
+                // named by its matrix).
+                let key = leaf
+                    .rsplit('.')
+                    .next()
+                    .and_then(|k| k.split('[').next())
+                    .unwrap_or(leaf);
+                assert!(
+                    err.contains(name) && err.contains(key),
+                    "{case}: the refusal names neither the file nor `{key}`: {err}"
+                );
+            }
+        }
+        write_all(None);
+    }
+    eprintln!(
+        "{cases} extreme cases: {refused} refused by name, {} accepted",
+        accepted.len()
+    );
+    // Accepted extremes run: a seeded handful (every one in the long tier).
+    let runs: Vec<&(String, String, String)> = if long {
+        accepted.iter().collect()
+    } else {
+        (0..accepted.len().min(4))
+            .map(|_| &accepted[next(accepted.len())])
+            .collect()
+    };
+    for (k, (name, text, case)) in runs.into_iter().enumerate() {
+        write_all(Some((name, text)));
+        let data = dir.join(format!("data{k}"));
+        let t = Instant::now();
+        let out = risd_bounded(
+            &[
+                "--config".as_ref(),
+                cell.as_os_str(),
+                "--once".as_ref(),
+                "--data-dir".as_ref(),
+                data.as_os_str(),
+                "--cache-dir".as_ref(),
+                dir.join("cache").as_os_str(),
+            ],
+            Duration::from_secs(120),
+        );
+        let err = String::from_utf8_lossy(&out.stderr);
+        eprintln!(
+            "{case}: risd --once {} in {:.1} s",
+            if out.status.success() {
+                "done"
+            } else {
+                "failed"
+            },
+            t.elapsed().as_secs_f64()
+        );
+        assert!(
+            out.status.code().is_some() && !err.contains("panicked"),
+            "{case}: {:?} {err}",
+            out.status
+        );
+        assert!(
+            out.status.success() || err.contains("Error"),
+            "{case}: failed without a reason: {err}"
+        );
+        write_all(None);
+    }
+}

@@ -460,6 +460,7 @@ fn a_hung_stage_ends_at_its_deadline_or_when_stopped_and_the_next_scan_succeeds(
         .scan(&inspect, &data, "a", &|| false, &record)
         .expect_err("a hung reconstruction fails its scan");
     let took = since("reconstructing");
+    eprintln!("hung reconstruction failed its scan {took:?} into the stage");
     let msg = format!("{e:#}");
     assert!(
         msg.contains("sensor s1: reconstruction: past its deadline of 1.0 s"),
@@ -501,6 +502,7 @@ fn a_hung_stage_ends_at_its_deadline_or_when_stopped_and_the_next_scan_succeeds(
         .expect("raised")
         .expect("stop raised")
         .elapsed();
+    eprintln!("hung inspection ended {after:?} after the stop flag");
     let msg = format!("{e:#}");
     assert!(msg.contains("inspection of part panel: cancelled"), "{msg}");
     assert!(
@@ -614,6 +616,7 @@ fn a_stuck_stage_starves_the_watchdog_and_sigterm_still_ends_risd_promptly() {
         let t = Instant::now();
         let (status, log) = risd.terminate();
         let took = t.elapsed();
+        eprintln!("SIGTERM to exit with a stuck stage: {took:?}; pings while fed: {fed}");
         done.store(true, std::sync::atomic::Ordering::SeqCst);
         assert!(
             took < Duration::from_secs(2),

@@ -526,6 +526,10 @@ fn a_hung_stage_ends_at_its_deadline_or_when_stopped_and_the_next_scan_succeeds(
 /// period, then goes quiet so the systemd watchdog starves (the only case it does); SIGTERM
 /// still ends risd within 2 s, and the next start removes the unfinished scan.
 #[test]
+#[cfg_attr(
+    not(feature = "fault-injection"),
+    ignore = "needs risd built with --features fault-injection (.ci/run builds --all-features)"
+)]
 fn a_stuck_stage_starves_the_watchdog_and_sigterm_still_ends_risd_promptly() {
     use std::os::unix::net::UnixDatagram;
     let tmp = tempfile::tempdir().expect("tmp");

@@ -169,6 +169,13 @@ pub fn inspect(
         })?;
         return Ok(known_pose(cloud, cad, params, pose, non_finite));
     }
+    let clock = std::time::Instant::now();
+    let lap = |phase: &str| {
+        tracing::debug!(
+            seconds = clock.elapsed().as_secs_f64(),
+            "inspection: {phase}"
+        )
+    };
     let step = (cloud.len() / params.fit_points.max(1)).max(1);
     let fit: Vec<[f64; 3]> = cloud.iter().step_by(step).copied().collect();
     let (start, mut alignment, contenders) = match params.init {
@@ -178,6 +185,7 @@ pub fn inspect(
             (p, Some(a), c)
         }
     };
+    lap("coarse alignment");
     crate::budget::check()?;
     let framed = params.datums.iter().any(|d| d.order.is_some());
     let mut measurements = Vec::new();
@@ -215,8 +223,10 @@ pub fn inspect(
                 ));
             }
         }
+        lap("trusted-region fit");
         let edges = rim.as_ref().map_or(&[][..], |r| &r.edges[..]);
         stability = stability::analyse(&trusted, cad, &pose, edges);
+        lap("stability");
         rim_fit = rim;
         (pose, mode, frac, it)
     } else {
@@ -225,8 +235,10 @@ pub fn inspect(
     crate::budget::check()?;
     let points = to_cad(cloud, &pose);
     let (deviations, outside) = inspected_deviations(&points, cad, params);
+    lap("deviations");
     crate::budget::check()?;
     let (coverage, near) = surface_coverage(&points, &deviations, cad, params, &pose);
+    lap("coverage");
     // What the fit used: the datum regions when the part has datums, else the surface; a
     // datum frame states its own.
     let conditioning = match frame_conditioning {
@@ -249,6 +261,7 @@ pub fn inspect(
             conditioning::analyse_with_edges(&fit_cad, cad, near, params.tolerance, &edges)
         }
     };
+    lap("conditioning");
     let mut report = report::build(
         &points,
         &deviations,
@@ -769,6 +782,14 @@ fn trusted_region_fit(
     Vec<[f64; 3]>,
     Option<rim::RimFit>,
 ) {
+    let clock = std::time::Instant::now();
+    let lap = |step: &str, iterations: usize| {
+        tracing::debug!(
+            seconds = clock.elapsed().as_secs_f64(),
+            iterations,
+            "trusted-region fit: {step}"
+        )
+    };
     let cad_rim = rim::CadRim::of(cad);
     let mut rim_fit: Option<rim::RimFit> = None;
     let (mut pose, mut total) = fit_to_surface(pts, cad, start, 15, &|_, d| {
@@ -798,9 +819,11 @@ fn trusted_region_fit(
             .fold(Vector3::zeros(), |a, p| a + Vector3::from(*p))
             / pts.len().max(1) as f64,
     );
+    lap("rough fit and noise", total);
     for _pass in 0..4 {
         let before = pose;
         let seeds = flat_seeds(pts, cad, &pose);
+        lap("seeds", total);
         trusted = seeds.clone();
         let mut thr = 0.5 * params.tolerance;
         for _round in 0..40 {
@@ -835,10 +858,12 @@ fn trusted_region_fit(
             }
             thr = (thr * 0.7).max(floor);
         }
+        lap("annealed", total);
         if let Some((mask, p)) = consensus::admit(pts, &trusted, cad, &pose, noise) {
             trusted = mask;
             pose = p;
         }
+        lap("consensus", total);
         if let Some(r) = rim::register(
             pts,
             &selected(pts, &trusted),
@@ -852,8 +877,14 @@ fn trusted_region_fit(
             pose = r.pose;
             rim_fit = Some(r);
         }
+        lap("rim", total);
         let turned = crate::register::rotation_angle_deg(&(pose * before.inverse()));
         let shifted = (pose * centroid - before * centroid).norm();
+        tracing::debug!(
+            turned,
+            shifted,
+            "trusted-region fit: the pass moved the pose"
+        );
         if turned < 1e-3 && shifted < 5e-3 {
             break;
         }
@@ -876,6 +907,7 @@ fn trusted_region_fit(
             pose = r.pose;
         }
     }
+    lap("rim rivals", total);
     let frac = set.len() as f64 / pts.len() as f64;
     let mode = if rim_fit.is_some() {
         "trusted-region and rim"

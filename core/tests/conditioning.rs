@@ -71,7 +71,7 @@ fn unpinned(report: &Report) -> Vec<&ris_core::inspect::Direction> {
 
 #[test]
 fn planes_and_cylinders_are_not_measured_features_pin_every_direction() {
-    for seed in seeds(3, 6) {
+    for seed in seeds(2, 6) {
         let mut r = Rng(seed * 7 + 1);
         let (hx, hy) = (r.range(120.0, 300.0), r.range(90.0, 250.0));
 

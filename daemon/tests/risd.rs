@@ -7,6 +7,8 @@ use std::process::Command;
 use ris_daemon::config::CellConfig;
 use ris_daemon::scan::ScanOptions;
 
+mod common;
+
 fn config_dir() -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../config")
 }
@@ -437,6 +439,12 @@ fn once_scans_the_builtin_mock_cell() {
 /// spacing and the least step that works (a step of 8 gives X-points 7.8 camera pixels apart on
 /// the mock cell, and the detector finds a quarter of them); a single-shot scan then fails
 /// naming it. A step of 9 (8.7 px), which the detector set for the spacing resolves, scans whole.
+/// The prepared pairs' cache the suite's risd processes share: only the first preparation of
+/// a pair prepares it from scratch.
+fn shared_cache() -> ris_daemon::prepared::Cache {
+    ris_daemon::prepared::Cache::new(Some(common::shared_cache()))
+}
+
 /// One single-shot scan of `config`'s pairs into `data` (inspecting `part` when given).
 fn single_shot_scan(
     config: &CellConfig,
@@ -445,7 +453,7 @@ fn single_shot_scan(
     id: &str,
 ) -> anyhow::Result<(ris_daemon::scan::ScanReport, std::path::PathBuf)> {
     let mut pairs =
-        ris_daemon::pair::open_all(config, 5, &Default::default(), &|_, _, _| {}).expect("pairs");
+        ris_daemon::pair::open_all(config, 5, &shared_cache(), &|_, _, _| {}).expect("pairs");
     ris_daemon::scan::run(
         "mock",
         &mut pairs,
@@ -577,7 +585,7 @@ fn a_fault_in_one_pair_fails_that_scan_and_the_next_succeeds() {
     use ris_drivers::mock::Fault;
     let config = CellConfig::load(&config_dir().join("mock-cell.toml")).expect("config");
     let mut pairs =
-        ris_daemon::pair::open_all(&config, 3, &Default::default(), &|_, _, _| {}).expect("pairs");
+        ris_daemon::pair::open_all(&config, 3, &shared_cache(), &|_, _, _| {}).expect("pairs");
     let data = tempfile::tempdir().expect("tmp");
     // s2's camera ignores four triggers in a row: one slide exhausts its retries.
     let s2 = pairs.iter().position(|p| p.name == "s2").expect("s2");

@@ -435,10 +435,6 @@ fn once_scans_the_builtin_mock_cell() {
     }
 }
 
-/// An X-point pattern finer than the cameras resolve is refused per pair at open, with the
-/// spacing and the least step that works (a step of 8 gives X-points 7.8 camera pixels apart on
-/// the mock cell, and the detector finds a quarter of them); a single-shot scan then fails
-/// naming it. A step of 9 (8.7 px), which the detector set for the spacing resolves, scans whole.
 /// The prepared pairs' cache the suite's risd processes share: only the first preparation of
 /// a pair prepares it from scratch.
 fn shared_cache() -> ris_daemon::prepared::Cache {
@@ -469,6 +465,10 @@ fn single_shot_scan(
     )
 }
 
+/// An X-point pattern finer than the cameras resolve is refused per pair at open, with the
+/// spacing and the least step that works (a step of 8 gives X-points 7.8 camera pixels apart on
+/// the mock cell, and the detector finds a quarter of them); a single-shot scan then fails
+/// naming it. A step of 9 (8.7 px), which the detector set for the spacing resolves, scans whole.
 #[test]
 fn a_pattern_finer_than_the_camera_resolves_is_refused_with_the_step_that_works() {
     let mut config = CellConfig::load(&config_dir().join("mock-cell.toml")).expect("config");

@@ -206,7 +206,7 @@ pub fn inspect(
         (f.pose, "datum-frame", 0.0, f.iterations)
     } else if params.datums.is_empty() {
         let (pose, mode, frac, it, trusted, rim) =
-            trusted_region_fit(&fit, cad, start, params, &contenders[1..]);
+            trusted_region_fit(&fit, cloud, cad, start, params, &contenders[1..]);
         // Contending coarse poses that fit the surface as well but not the rim: the rim
         // settles which one the part is in.
         if let (Some(a), Some(r)) = (
@@ -770,6 +770,7 @@ fn datum_fit(
 #[allow(clippy::type_complexity)]
 fn trusted_region_fit(
     pts: &[[f64; 3]],
+    cloud: &[[f64; 3]],
     cad: &SignedDistance,
     start: Pose,
     params: &InspectParams,
@@ -791,6 +792,19 @@ fn trusted_region_fit(
         )
     };
     let cad_rim = rim::CadRim::of(cad);
+    // Edges are looked for in a denser sample of the cloud than the surface fit's: a strip
+    // across the rim then holds several columns of points, and where the scan ends is
+    // measured to a fraction of their spacing.
+    let edge_cloud: Vec<[f64; 3]> = if cad_rim.is_empty() {
+        Vec::new()
+    } else {
+        cloud
+            .iter()
+            .step_by((cloud.len() / rim::EDGE_POINTS).max(1))
+            .copied()
+            .collect()
+    };
+    let edge_cloud = (!cad_rim.is_empty()).then(|| rim::RimCloud::new(&edge_cloud));
     let mut rim_fit: Option<rim::RimFit> = None;
     let (mut pose, mut total) = fit_to_surface(pts, cad, start, 15, &|_, d| {
         if d.abs() < 5.0 {
@@ -813,12 +827,20 @@ fn trusted_region_fit(
     // until it stops moving. Seeds taken once at a pose a deformation had pulled along the
     // surface would exclude the very features that pin the slide.
     let mut trusted = Vec::new();
-    // A pass has converged when it moves the points' centroid by < 5 µm and turns < 0.001°.
+    // A pass has converged when it moves the points (their centroid, and the turn at their
+    // RMS radius) by less than 2 % of the tolerance: seeds and trimming then see the same
+    // deviations to well within the noise, and the rim's edges are found again where they were.
     let centroid = Point3::from(
         pts.iter()
             .fold(Vector3::zeros(), |a, p| a + Vector3::from(*p))
             / pts.len().max(1) as f64,
     );
+    let radius = (pts
+        .iter()
+        .map(|p| (Point3::from(*p) - centroid).norm_squared())
+        .sum::<f64>()
+        / pts.len().max(1) as f64)
+        .sqrt();
     lap("rough fit and noise", total);
     for _pass in 0..4 {
         let before = pose;
@@ -864,16 +886,18 @@ fn trusted_region_fit(
             pose = p;
         }
         lap("consensus", total);
-        if let Some(r) = rim::register(
-            pts,
-            &selected(pts, &trusted),
-            cad,
-            &cad_rim,
-            pose,
-            params.tolerance,
-            // where the rim is first found, other placements compete (the basin to refine in)
-            rim_fit.is_none().then_some(contenders),
-        ) {
+        if let Some(r) = edge_cloud.as_ref().and_then(|edge_cloud| {
+            rim::register(
+                edge_cloud,
+                &selected(pts, &trusted),
+                cad,
+                &cad_rim,
+                pose,
+                params.tolerance,
+                // where the rim is first found, other placements compete (the basin to refine in)
+                rim_fit.is_none().then_some(contenders),
+            )
+        }) {
             pose = r.pose;
             rim_fit = Some(r);
         }
@@ -885,7 +909,7 @@ fn trusted_region_fit(
             shifted,
             "trusted-region fit: the pass moved the pose"
         );
-        if turned < 1e-3 && shifted < 5e-3 {
+        if shifted + turned.to_radians() * radius < 0.02 * params.tolerance {
             break;
         }
     }
@@ -893,9 +917,9 @@ fn trusted_region_fit(
     let set = selected(pts, &trusted);
     // Once converged: other placements that would put the scan's edges on the rim as well
     // (and the coarse alignment's runners-up) are looked for.
-    if rim_fit.is_some() {
+    if let (Some(_), Some(edge_cloud)) = (&rim_fit, &edge_cloud) {
         rim_fit = rim::register(
-            pts,
+            edge_cloud,
             &set,
             cad,
             &cad_rim,

@@ -46,6 +46,8 @@ const MIN_EDGES: usize = 8;
 pub(super) const PINS_BELOW: f64 = 1e-4;
 /// Samples at most (the spacing grows for very long boundaries).
 const MAX_SAMPLES: usize = 20_000;
+/// Points of the cloud at most in which edges are looked for (an even sample of it).
+pub(super) const EDGE_POINTS: usize = 200_000;
 
 /// One sample of the CAD's open boundary.
 #[derive(Clone, Copy, Debug)]
@@ -157,6 +159,20 @@ pub(super) struct RimFit {
     /// A placement turned against this one puts as much of the scan's edge on the rim (a
     /// symmetric outline): the rim cannot settle which way round the part lies.
     pub turned_rival: bool,
+}
+
+/// Why a rim seen along `seen` mm does not pin the fit, given the rival placement (how far
+/// apart it puts the points; the length of rim it rests on, 0 where it reaches none; mm).
+fn ambiguity(seen: f64, (apart, theirs): (f64, f64)) -> String {
+    if theirs == 0.0 {
+        format!(
+            "the scan's edges fit the CAD's rim along {seen:.0} mm, but the surface fits as well with the points placed up to {apart:.1} mm elsewhere, where they reach no rim: where the scan ends short of the rim cannot be told from where the part ends"
+        )
+    } else {
+        format!(
+            "the scan's edges fit the CAD's rim along {seen:.0} mm, but also along {theirs:.0} mm with the points placed up to {apart:.1} mm elsewhere: where the scan ends short of the rim cannot be told from where the part ends"
+        )
+    }
 }
 
 /// One observation: the edge's offset beyond the rim sample (along `outward`) and the run's
@@ -293,10 +309,28 @@ impl Converged {
     }
 }
 
+/// The cloud whose edges are looked for on the rim, indexed once for all the rim fits of an
+/// inspection.
+pub(super) struct RimCloud<'a> {
+    pts: &'a [[f64; 3]],
+    tree: KdTree,
+    /// Median distance from a point to its nearest neighbour, mm.
+    spacing: f64,
+}
+
+impl<'a> RimCloud<'a> {
+    /// Index `pts` (the cloud frame).
+    pub(super) fn new(pts: &'a [[f64; 3]]) -> Self {
+        let tree = KdTree::new(pts);
+        let spacing = point_spacing(pts, &tree);
+        RimCloud { pts, tree, spacing }
+    }
+}
+
 /// What [`register`] works with.
 struct Scene<'a> {
     pts: &'a [[f64; 3]],
-    tree: KdTree,
+    tree: &'a KdTree,
     fit_set: Vec<[f64; 3]>,
     cad: &'a SignedDistance,
     rim: &'a CadRim,
@@ -316,9 +350,18 @@ impl Scene<'_> {
                 / self.fit_set.len() as f64,
         );
         let all = |_: &[f64; 3], _: f64| 1.0;
-        for depth in WINDOWS.iter().map(|d| d.max(self.finest)) {
+        let mut windows: Vec<f64> = WINDOWS.iter().map(|d| d.max(self.finest)).collect();
+        windows.dedup();
+        for (w, &depth) in windows.iter().enumerate() {
+            // A wider window only brings the edges within the next one's reach; the last
+            // settles to a hundredth of the point spacing.
+            let settled = if w + 1 < windows.len() {
+                0.05 * depth
+            } else {
+                (0.01 * self.spacing).max(1e-3)
+            };
             for _round in 0..8 {
-                let obs = observe_all(self.rim, &self.tree, self.pts, &pose, depth);
+                let obs = observe_all(self.rim, self.tree, self.pts, &pose, depth);
                 if obs.len() < MIN_EDGES {
                     break;
                 }
@@ -340,12 +383,12 @@ impl Scene<'_> {
                 let moved = (pose * centroid - before * centroid).norm()
                     + crate::register::rotation_angle_deg(&(pose * before.inverse())).to_radians()
                         * 1000.0;
-                if moved < 1e-3 {
+                if moved < settled {
                     break;
                 }
             }
         }
-        let obs = observe_all(self.rim, &self.tree, self.pts, &pose, self.finest);
+        let obs = observe_all(self.rim, self.tree, self.pts, &pose, self.finest);
         let offsets: Vec<f64> = obs.iter().map(|o| o.1).collect();
         // At the finest window an edge within a few point spacings of the rim counts, however
         // widely the rest scatter (a wavering coverage limit near the rim).
@@ -463,13 +506,13 @@ impl Scene<'_> {
 }
 
 /// Register `surface` (cloud frame: the trusted points) to `cad` from `pose` together with the
-/// edges the cloud `pts` shows on the CAD's rim; `None` when too few edges are found (the scan
+/// edges `cloud` shows on the CAD's rim; `None` when too few edges are found (the scan
 /// does not reach the rim, or the CAD has none). `tolerance` (mm): poses that place the points
 /// less than this apart are one. `contenders`: other starting poses (the coarse alignment's
 /// runners-up) whose rim fits compete with this one; `None`: no search for rivals (a later
 /// pass from a pose already judged).
 pub(super) fn register(
-    pts: &[[f64; 3]],
+    cloud: &RimCloud,
     surface: &[[f64; 3]],
     cad: &SignedDistance,
     rim: &CadRim,
@@ -480,12 +523,11 @@ pub(super) fn register(
     if rim.is_empty() || surface.len() < 10 {
         return None;
     }
-    let tree = KdTree::new(pts);
     // The cloud's point spacing sets the narrowest window and the offsets' noise floor.
-    let spacing = point_spacing(pts, &tree);
+    let spacing = cloud.spacing;
     let scene = Scene {
-        pts,
-        tree,
+        pts: cloud.pts,
+        tree: &cloud.tree,
         fit_set: surface
             .iter()
             .step_by((surface.len() / 8_000).max(1))
@@ -652,24 +694,13 @@ fn finish(
         .filter(|(_, w)| **w > 0.0)
         .map(|(o, _)| o.1)
         .collect();
+    let rival = rival.map(|(apart, n)| (apart, n as f64 * rim.spacing));
     let summary = RimUse {
         cad_rim_mm: rim.samples.len() as f64 * rim.spacing,
         seen_mm: used.len() as f64 * rim.spacing,
         rms_mm: (used.iter().map(|e| e * e).sum::<f64>() / used.len() as f64).sqrt(),
         left_out: best.obs.len() - used.len(),
-        ambiguous: rival.map(|(apart, n)| {
-            let seen = used.len() as f64 * rim.spacing;
-            if n == 0 {
-                format!(
-                    "the scan's edges fit the CAD's rim along {seen:.0} mm, but the surface fits as well with the points placed up to {apart:.1} mm elsewhere, where they reach no rim: where the scan ends short of the rim cannot be told from where the part ends"
-                )
-            } else {
-                format!(
-                    "the scan's edges fit the CAD's rim along {seen:.0} mm, but also along {:.0} mm with the points placed up to {apart:.1} mm elsewhere: where the scan ends short of the rim cannot be told from where the part ends",
-                    n as f64 * rim.spacing
-                )
-            }
-        }),
+        ambiguous: rival.map(|r| ambiguity(used.len() as f64 * rim.spacing, r)),
     };
     tracing::debug!(?summary, spacing = scene.spacing, "rim-aware fit");
     RimFit {

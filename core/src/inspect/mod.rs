@@ -804,7 +804,7 @@ fn trusted_region_fit(
             .copied()
             .collect()
     };
-    let edge_cloud = (!cad_rim.is_empty()).then(|| rim::RimCloud::new(&edge_cloud));
+    let edge_cloud = (!cad_rim.is_empty()).then(|| rim::RimCloud::new(&edge_cloud, pts));
     let mut rim_fit: Option<rim::RimFit> = None;
     let (mut pose, mut total) = fit_to_surface(pts, cad, start, 15, &|_, d| {
         if d.abs() < 5.0 {

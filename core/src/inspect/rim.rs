@@ -316,14 +316,31 @@ pub(super) struct RimCloud<'a> {
     tree: KdTree,
     /// Median distance from a point to its nearest neighbour, mm.
     spacing: f64,
+    /// The narrowest search window, mm.
+    finest: f64,
 }
 
 impl<'a> RimCloud<'a> {
-    /// Index `pts` (the cloud frame).
-    pub(super) fn new(pts: &'a [[f64; 3]]) -> Self {
+    /// Index `pts` (the cloud frame). The narrowest window is sized by the spacing of
+    /// `sparse`, the surface fit's sample (a subset of `pts` where the cloud is large): a strip
+    /// across the rim then holds enough of `pts` for a run even where the scan ends a few
+    /// millimetres short of the rim. Sized by the spacing of `pts` alone, a strip of a sparse
+    /// random cloud held about as few points as a run needs, and which strips showed an edge
+    /// changed from one round to the next.
+    pub(super) fn new(pts: &'a [[f64; 3]], sparse: &[[f64; 3]]) -> Self {
         let tree = KdTree::new(pts);
         let spacing = point_spacing(pts, &tree);
-        RimCloud { pts, tree, spacing }
+        let sparse_spacing = if sparse.len() < pts.len() {
+            point_spacing(sparse, &KdTree::new(sparse))
+        } else {
+            spacing
+        };
+        RimCloud {
+            pts,
+            tree,
+            spacing,
+            finest: WINDOWS[WINDOWS.len() - 1].max(6.0 * spacing.max(sparse_spacing)),
+        }
     }
 }
 
@@ -536,7 +553,7 @@ pub(super) fn register(
         cad,
         rim,
         spacing,
-        finest: WINDOWS[WINDOWS.len() - 1].max(6.0 * spacing),
+        finest: cloud.finest,
         // a point spacing and a half, or a trim line's own tolerance
         band: (1.5 * spacing).max(2.0 * tolerance),
     };

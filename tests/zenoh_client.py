@@ -1,7 +1,9 @@
 #!/usr/bin/env python3
 """An independent Zenoh client (eclipse-zenoh, not RIS code) driving a running risd:
 scan request -> scan_id, state publications ending in done, a binary-PLY cloud per sensor and
-merged, an error reply for a malformed request, a second scan, stored results queryable.
+merged, an error reply for a malformed request, a second scan followed by a slow subscriber
+(each cloud's callback sleeps, so risd's link to it stays congested while `done` goes out),
+stored results queryable.
 
 Usage: zenoh_client.py ENDPOINT CELL SENSOR... ; exit status 0 when every check passed."""
 
@@ -27,19 +29,28 @@ def main():
 
     lock = threading.Lock()
     states, clouds, reports = {}, {}, {}
+    slow = set()  # scans whose clouds this client takes slowly
 
     def on_sample(sample):
         key = str(sample.key_expr)
         parts = key.split("/")
+        delay = False
         with lock:
             if parts[-1] == "state":
                 states.setdefault(parts[3], []).append(json.loads(sample.payload.to_bytes()))
             elif parts[-2] == "cloud":
                 clouds.setdefault(parts[3], {})[parts[-1]] = sample.payload.to_bytes()
+                delay = parts[3] in slow
             elif parts[-1] == "report":
                 reports[parts[3]] = json.loads(sample.payload.to_bytes())
+        if delay:
+            # A slow consumer: nothing more is read from this link while the callback runs.
+            time.sleep(1.0)
 
-    sub = session.declare_subscriber(f"ris/{cell}/scans/**", on_sample)
+    # Called on Zenoh's network thread (not a Python thread of its own), so a slow callback
+    # is a slow consumer as risd sees it.
+    handler = zenoh.handlers.Callback(on_sample, indirect=False)
+    sub = session.declare_subscriber(f"ris/{cell}/scans/**", handler)
 
     def ask(payload):
         replies = list(session.get(f"ris/{cell}/scan", payload=payload, timeout=10.0))
@@ -57,7 +68,11 @@ def main():
                 if seq and seq[-1]["state"] in ("done", "failed"):
                     return seq
             time.sleep(0.2)
-        raise AssertionError(f"scan {scan_id} did not finish: {states.get(scan_id)}")
+        with lock:
+            got = sorted(clouds.get(scan_id, {}))
+            last = states.get(scan_id, [])[-3:]
+        raise AssertionError(f"scan {scan_id} did not finish in {timeout} s: last states {last}, "
+                             f"clouds received {got}")
 
     ok, err = ask("{not json")
     assert ok is None and "malformed" in err, (ok, err)
@@ -76,6 +91,9 @@ def main():
         assert err is None, err
         assert ok["state"] == "accepted", ok
         scan_id = ok["scan_id"]
+        if inspect is False:
+            with lock:
+                slow.add(scan_id)
         seq = wait_done(scan_id)
         names = [s["state"] for s in seq]
         assert names[-1] == "done", seq[-1]

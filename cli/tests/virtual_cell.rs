@@ -137,10 +137,12 @@ fn risd_scans_the_virtual_cell_and_survives_a_lost_camera() {
     );
     let text = String::from_utf8_lossy(&out.stdout);
     eprintln!("{text}{}", String::from_utf8_lossy(&out.stderr));
-    assert!(
-        out.status.success() && text.contains("1 passed, 0 failed"),
-        "{text}"
-    );
+    if !(out.status.success() && text.contains("1 passed, 0 failed")) {
+        panic!(
+            "the client failed: {text}\nrisd's log, last lines:\n{}",
+            risd.kill_for_log(60)
+        );
+    }
 
     // The clouds lie on the scenes' surfaces.
     dog.stage("checking the clouds");

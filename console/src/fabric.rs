@@ -414,6 +414,7 @@ impl Fabric {
                     if let Err(e) = self
                         .session
                         .put(alarms_key(&alarm.cell), serde_json::to_string(&alarm)?)
+                        .congestion_control(zenoh::qos::CongestionControl::Block)
                         .await
                     {
                         tracing::warn!(error = %e, "publishing the alarm failed");

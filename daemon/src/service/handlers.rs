@@ -20,7 +20,7 @@ use crate::stream::{self, StreamControl};
 use crate::verification::{self, Ledger};
 
 use super::refusals::Refusals;
-use super::worker::{publish, Job};
+use super::worker::{publish_async, Job};
 
 /// Validate a request against the cell and choose the part to inspect (an index into the
 /// cell's parts); the error is the reply's reason.
@@ -171,7 +171,7 @@ pub(super) async fn handle_scan(
     match outcome {
         Ok((scan_id, r)) => {
             tracing::info!(%scan_id, tag = ?r.tag.as_deref().map(echo), "scan accepted");
-            publish(session, &config.name, &scan_id, &ScanState::Queued);
+            publish_async(session, &config.name, &scan_id, &ScanState::Queued).await;
             let reply = ScanReply {
                 scan_id,
                 state: "accepted".into(),
@@ -375,7 +375,11 @@ pub(super) async fn handle_verify(
                     .unwrap_or_default();
                 if let Ok(page) = tokio::fs::read(dir.join("verify.html")).await {
                     let pk = VerificationItem::Page.key(cell, &record.id);
-                    if let Err(e) = session.put(&pk, page).await {
+                    if let Err(e) = session
+                        .put(&pk, page)
+                        .congestion_control(zenoh::qos::CongestionControl::Block)
+                        .await
+                    {
                         tracing::warn!(key = %pk, error = %e, "publication failed");
                     }
                 }

@@ -51,10 +51,32 @@ impl Heartbeat {
     }
 }
 
+/// Publish a scan's state. States are small and a client follows a scan by them, so they are
+/// never dropped: Zenoh's default for a put drops it when the link's queue stays full for a
+/// millisecond, which is what it does right after a scan's clouds went out to a slow
+/// subscriber, and a client that lost `done` waits for ever.
 pub(super) fn publish(session: &Session, cell: &str, scan_id: &str, state: &ScanState) {
     let key = state_key(cell, scan_id);
     let json = serde_json::to_string(state).unwrap_or_default();
-    if let Err(e) = session.put(&key, json).wait() {
+    if let Err(e) = session
+        .put(&key, json)
+        .congestion_control(CongestionControl::Block)
+        .wait()
+    {
+        tracing::warn!(%key, error = %e, "state publication failed");
+    }
+}
+
+/// [`publish`] from an async handler: the same never-dropped put, awaited instead of blocking
+/// the runtime's thread while the link is congested.
+pub(super) async fn publish_async(session: &Session, cell: &str, scan_id: &str, state: &ScanState) {
+    let key = state_key(cell, scan_id);
+    let json = serde_json::to_string(state).unwrap_or_default();
+    if let Err(e) = session
+        .put(&key, json)
+        .congestion_control(CongestionControl::Block)
+        .await
+    {
         tracing::warn!(%key, error = %e, "state publication failed");
     }
 }
@@ -270,7 +292,12 @@ fn run_job(mut job: Job, cell_: &mut Cell, ctx: &WorkerContext) {
                 "verification": position,
             });
             let key = state_key(cell, &id);
-            if let Err(e) = session.put(&key, done.to_string()).wait() {
+            // Never dropped (see `publish`): it follows the clouds on the same link.
+            if let Err(e) = session
+                .put(&key, done.to_string())
+                .congestion_control(CongestionControl::Block)
+                .wait()
+            {
                 tracing::warn!(%key, error = %e, "state publication failed");
             }
             if let Ok(mut s) = ctx.status.lock() {

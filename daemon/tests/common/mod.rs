@@ -131,6 +131,19 @@ impl Risd {
         }
     }
 
+    /// Kill the process and return the last `n` lines of its log: what a failed check shows of
+    /// what risd was doing.
+    pub fn kill_for_log(mut self, n: usize) -> String {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        let log = self
+            .log
+            .take()
+            .and_then(|h| h.join().ok())
+            .unwrap_or_default();
+        log[log.len().saturating_sub(n)..].join("\n")
+    }
+
     /// SIGTERM, then wait up to 20 s for the exit.
     pub fn terminate(self) -> (std::process::ExitStatus, Vec<String>) {
         let ok = Command::new("kill")

@@ -792,19 +792,7 @@ fn trusted_region_fit(
         )
     };
     let cad_rim = rim::CadRim::of(cad);
-    // Edges are looked for in a denser sample of the cloud than the surface fit's: a strip
-    // across the rim then holds several columns of points, and where the scan ends is
-    // measured to a fraction of their spacing.
-    let edge_cloud: Vec<[f64; 3]> = if cad_rim.is_empty() {
-        Vec::new()
-    } else {
-        cloud
-            .iter()
-            .step_by((cloud.len() / rim::EDGE_POINTS).max(1))
-            .copied()
-            .collect()
-    };
-    let edge_cloud = (!cad_rim.is_empty()).then(|| rim::RimCloud::new(&edge_cloud, pts));
+    let edge_cloud = (!cad_rim.is_empty()).then(|| rim::RimCloud::new(cloud, pts));
     let mut rim_fit: Option<rim::RimFit> = None;
     let (mut pose, mut total) = fit_to_surface(pts, cad, start, 15, &|_, d| {
         if d.abs() < 5.0 {

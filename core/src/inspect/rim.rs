@@ -46,8 +46,9 @@ const MIN_EDGES: usize = 8;
 pub(super) const PINS_BELOW: f64 = 1e-4;
 /// Samples at most (the spacing grows for very long boundaries).
 const MAX_SAMPLES: usize = 20_000;
-/// Points of the cloud at most in which edges are looked for (an even sample of it).
-pub(super) const EDGE_POINTS: usize = 200_000;
+/// Points of the cloud in which edges are looked for: a larger cloud is thinned to every
+/// `len / EDGE_POINTS`-th point (up to twice as many).
+const EDGE_POINTS: usize = 200_000;
 
 /// One sample of the CAD's open boundary.
 #[derive(Clone, Copy, Debug)]
@@ -309,10 +310,10 @@ impl Converged {
     }
 }
 
-/// The cloud whose edges are looked for on the rim, indexed once for all the rim fits of an
-/// inspection.
+/// The cloud whose edges are looked for on the rim (an even sample of about [`EDGE_POINTS`]
+/// of its points), indexed once for all the rim fits of an inspection.
 pub(super) struct RimCloud<'a> {
-    pts: &'a [[f64; 3]],
+    pts: std::borrow::Cow<'a, [[f64; 3]]>,
     tree: KdTree,
     /// Median distance from a point to its nearest neighbour, mm.
     spacing: f64,
@@ -321,15 +322,23 @@ pub(super) struct RimCloud<'a> {
 }
 
 impl<'a> RimCloud<'a> {
-    /// Index `pts` (the cloud frame). The narrowest window is sized by the spacing of
-    /// `sparse`, the surface fit's sample (a subset of `pts` where the cloud is large): a strip
+    /// Index an even sample of `cloud` (the cloud frame; denser than the surface fit's, so that
+    /// a strip across the rim holds several columns of points and where the scan ends is
+    /// measured to a fraction of their spacing). The narrowest window is sized by the spacing
+    /// of `sparse`, the surface fit's sample (a subset of the cloud where it is large): a strip
     /// across the rim then holds enough of `pts` for a run even where the scan ends a few
     /// millimetres short of the rim. Sized by the spacing of `pts` alone, a strip of a sparse
     /// random cloud held about as few points as a run needs, and which strips showed an edge
     /// changed from one round to the next.
-    pub(super) fn new(pts: &'a [[f64; 3]], sparse: &[[f64; 3]]) -> Self {
-        let tree = KdTree::new(pts);
-        let spacing = point_spacing(pts, &tree);
+    pub(super) fn new(cloud: &'a [[f64; 3]], sparse: &[[f64; 3]]) -> Self {
+        let step = cloud.len() / EDGE_POINTS;
+        let pts: std::borrow::Cow<'a, [[f64; 3]]> = if step > 1 {
+            cloud.iter().step_by(step).copied().collect()
+        } else {
+            std::borrow::Cow::Borrowed(cloud)
+        };
+        let tree = KdTree::new(&pts);
+        let spacing = point_spacing(&pts, &tree);
         let sparse_spacing = if sparse.len() < pts.len() {
             point_spacing(sparse, &KdTree::new(sparse))
         } else {
@@ -543,7 +552,7 @@ pub(super) fn register(
     // The cloud's point spacing sets the narrowest window and the offsets' noise floor.
     let spacing = cloud.spacing;
     let scene = Scene {
-        pts: cloud.pts,
+        pts: &cloud.pts,
         tree: &cloud.tree,
         fit_set: surface
             .iter()

@@ -56,8 +56,17 @@ impl Heartbeat {
 /// millisecond, which is what it does right after a scan's clouds went out to a slow
 /// subscriber, and a client that lost `done` waits for ever.
 pub(super) fn publish(session: &Session, cell: &str, scan_id: &str, state: &ScanState) {
+    publish_json(
+        session,
+        cell,
+        scan_id,
+        serde_json::to_string(state).unwrap_or_default(),
+    );
+}
+
+/// [`publish`] of a state already written as JSON (`done`, with the scan's figures).
+fn publish_json(session: &Session, cell: &str, scan_id: &str, json: String) {
     let key = state_key(cell, scan_id);
-    let json = serde_json::to_string(state).unwrap_or_default();
     if let Err(e) = session
         .put(&key, json)
         .congestion_control(CongestionControl::Block)
@@ -291,15 +300,7 @@ fn run_job(mut job: Job, cell_: &mut Cell, ctx: &WorkerContext) {
                 "total": report.total,
                 "verification": position,
             });
-            let key = state_key(cell, &id);
-            // Never dropped (see `publish`): it follows the clouds on the same link.
-            if let Err(e) = session
-                .put(&key, done.to_string())
-                .congestion_control(CongestionControl::Block)
-                .wait()
-            {
-                tracing::warn!(%key, error = %e, "state publication failed");
-            }
+            publish_json(session, cell, &id, done.to_string());
             if let Ok(mut s) = ctx.status.lock() {
                 s.last_scan = Some(id.clone());
             }

@@ -101,7 +101,7 @@ impl Risd {
     pub fn wait_ready(&mut self, limit: Duration) {
         if self.ready.recv_timeout(limit).is_err() {
             let _ = self.child.kill();
-            let log = self.log.take().and_then(|h| h.join().ok());
+            let log = self.take_log();
             panic!("risd never became ready: {log:#?}");
         }
     }
@@ -111,20 +111,12 @@ impl Risd {
         let t = Instant::now();
         loop {
             if let Some(s) = self.child.try_wait().expect("wait") {
-                let log = self
-                    .log
-                    .take()
-                    .and_then(|h| h.join().ok())
-                    .unwrap_or_default();
+                let log = self.take_log();
                 return (s, log);
             }
             if t.elapsed() > limit {
                 let _ = self.child.kill();
-                let log = self
-                    .log
-                    .take()
-                    .and_then(|h| h.join().ok())
-                    .unwrap_or_default();
+                let log = self.take_log();
                 panic!("risd did not exit within {limit:?}: {log:#?}");
             }
             std::thread::sleep(Duration::from_millis(50));
@@ -136,12 +128,16 @@ impl Risd {
     pub fn kill_for_log(mut self, n: usize) -> String {
         let _ = self.child.kill();
         let _ = self.child.wait();
-        let log = self
-            .log
+        let log = self.take_log();
+        log[log.len().saturating_sub(n)..].join("\n")
+    }
+
+    /// The log collected so far, once the process has ended (its stderr closed).
+    fn take_log(&mut self) -> Vec<String> {
+        self.log
             .take()
             .and_then(|h| h.join().ok())
-            .unwrap_or_default();
-        log[log.len().saturating_sub(n)..].join("\n")
+            .unwrap_or_default()
     }
 
     /// SIGTERM, then wait up to 20 s for the exit.

@@ -339,7 +339,7 @@ const CURVED: f32 = 0.006;
 /// surface's curvature, though, keeps its sign over a wide region, where the moiré averages
 /// out: the correction (averaged over [`SMOOTHING`]) is applied only where its mean over
 /// [`REGION`] exceeds [`CURVED`]. Flats keep the straight line's noise; spheres of 20–60 mm
-/// lose their bias (see `core/tests/curved_surfaces.rs`).
+/// lose their bias (see `core/tests/suite/curved_surfaces.rs`).
 pub(super) fn add_bend(w: usize, h: usize, coord: &mut [f32], bend: &[f32]) {
     let region = box_mean(w, h, coord, bend, REGION);
     let local = box_mean(w, h, coord, bend, SMOOTHING);

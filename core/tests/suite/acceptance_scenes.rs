@@ -12,7 +12,7 @@
 //! the long tier (`RIS_TIER=long`, `.ci/run --long`) the whole set of 7 bars, 6 flats and 10
 //! spheres.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -7,7 +7,7 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
 
-mod common;
+use crate::common;
 use common::{cell_config, free_port, output_within, InProcess};
 
 fn repo() -> std::path::PathBuf {

@@ -15,7 +15,7 @@
 //! curves alike. The curvature bias is what the correction removes, so the family's mean is
 //! held tight and each shape only within that scatter.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -7,7 +7,7 @@ use std::process::Command;
 use ris_daemon::config::CellConfig;
 use ris_daemon::scan::ScanOptions;
 
-mod common;
+use crate::common;
 
 fn config_dir() -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../config")

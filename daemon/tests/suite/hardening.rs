@@ -4,7 +4,7 @@
 //! data directory or cell name refuses to start while the first one's scan completes, and
 //! retention holds while the daemon runs.
 
-mod common;
+use crate::common;
 
 use std::ffi::OsStr;
 use std::path::{Path, PathBuf};

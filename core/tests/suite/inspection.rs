@@ -5,7 +5,7 @@ use ris_core::inspect::{inspect, Datum, InspectParams};
 use ris_core::mesh::{stl, SignedDistance, TriangleMesh};
 use ris_core::register::Pose;
 
-mod common;
+use crate::common;
 use common::Rng;
 
 fn surface(x: f64, y: f64) -> f64 {

@@ -8,8 +8,7 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
 
-#[path = "../../daemon/tests/common/mod.rs"]
-mod common;
+use crate::common;
 use common::output_within;
 
 /// A helix-like test cloud with confidences, volume flags and camera pixels (every third pixel

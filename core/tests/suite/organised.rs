@@ -5,7 +5,7 @@
 
 use ris_core::cloud::PointCloud;
 
-mod common;
+use crate::common;
 use common::Rng;
 
 /// A dense per-pixel buffer of `w` x `h` with about `fill` of the pixels measured.

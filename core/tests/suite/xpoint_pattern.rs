@@ -9,7 +9,7 @@ use std::collections::HashMap;
 use ris_core::single_shot::code::{hamming, window, DISTANCE, PERIOD};
 use ris_core::single_shot::{DenseRegion, XPointPattern};
 
-mod common;
+use crate::common;
 use common::Rng;
 
 #[test]

@@ -13,7 +13,7 @@ use ris_core::inspect::{inspect, InspectParams, Inspection};
 use ris_core::mesh::{SignedDistance, TriangleMesh};
 use ris_core::register::Pose;
 
-mod common;
+use crate::common;
 use common::{seeds, Rng};
 
 fn bump(x: f64, y: f64, cx: f64, cy: f64, r: f64, a: f64) -> f64 {

@@ -28,7 +28,7 @@ use ris_core::mesh::{Bvh, SignedDistance, TriangleMesh};
 use ris_core::register::Pose;
 use serde_json::Value;
 
-mod common;
+use crate::common;
 
 const CHORDAL: f64 = 0.01;
 

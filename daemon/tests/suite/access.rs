@@ -3,7 +3,7 @@
 //! cloud nor publish under the cell's keys; a reader reads but cannot scan or forge states; an
 //! operator scans.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::sync::mpsc;

@@ -13,7 +13,7 @@ use ris_core::verify::Status;
 use ris_daemon::protocol::{VerificationRecord, VerifyPosition};
 use zenoh::Wait;
 
-mod common;
+use crate::common;
 use common::{ask, cell_config, client, free_port, output_within, states, wait_end, InProcess};
 
 fn config_dir() -> PathBuf {

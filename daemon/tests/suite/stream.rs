@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use zenoh::Wait;
 
-mod common;
+use crate::common;
 use common::{ask, client, free_port, output_within, states, wait_end, Risd};
 
 fn repo() -> std::path::PathBuf {

@@ -4,7 +4,7 @@
 //! outside that box, the points it does not flag meet the accuracy of the calibrated region,
 //! and the extrapolated ones stay within millimetres instead of swinging by centimetres.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -12,7 +12,7 @@ use ris_core::geometry::Vec3;
 use ris_core::omni::scene::OmniScene;
 use zenoh::Wait;
 
-mod common;
+use crate::common;
 use common::{ask, cell_config, client, free_port, states, wait_end, InProcess};
 
 fn config_dir() -> std::path::PathBuf {

@@ -9,7 +9,7 @@ use std::path::Path;
 use ris_core::inspect::{inspect, InspectParams};
 use ris_core::mesh::{stl, SignedDistance, TriangleMesh};
 
-mod common;
+use crate::common;
 use common::Rng;
 
 const NX: usize = 40;

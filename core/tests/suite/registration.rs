@@ -3,7 +3,7 @@
 use nalgebra::{Point3, Vector3};
 use ris_core::register::{rotation_angle_deg, Icp, IcpMetric, IcpParams, Pose};
 
-mod common;
+use crate::common;
 use common::Rng;
 
 /// A smooth, asymmetric panel so every degree of freedom is constrained.

@@ -7,7 +7,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-mod common;
+use crate::common;
 use common::{free_port, output_within, Risd};
 
 fn repo() -> std::path::PathBuf {

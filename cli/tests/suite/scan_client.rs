@@ -1,8 +1,7 @@
 //! `ris scan` against the mock cell served in this process: an interrupted client says which
 //! scan goes on and where its results are, and the scan does finish in risd.
 
-#[path = "../../daemon/tests/common/mod.rs"]
-mod common;
+use crate::common;
 
 use std::io::BufRead;
 use std::process::{Command, Stdio};

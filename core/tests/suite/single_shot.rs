@@ -15,7 +15,7 @@ use ris_core::single_shot::{
     ReferencePrediction, XPointPattern,
 };
 
-mod common;
+use crate::common;
 use common::{seeds, Rng};
 
 fn demo_file() -> SceneFile {
@@ -768,7 +768,7 @@ fn independent_family(textures: &[(f64, f64)], family: u64) -> Vec<(usize, Outco
 /// a wrong primitive (1 of 25 871). The thresholds of the cut and drop tests were chosen on
 /// these scenes: see [`held_out_renders_pooled_over_twenty_four_scenes`] for 24 that were not
 /// looked at first. About two minutes on two cores:
-/// `cargo test --profile ci -p ris-core --test single_shot pooled_over_twelve -- --ignored --nocapture`
+/// `cargo test --profile ci -p ris-core --test core_suite single_shot::pooled_over_twelve -- --ignored --nocapture`
 #[test]
 #[ignore = "a survey of twelve scenes, about two minutes on two cores"]
 fn independent_renders_pooled_over_twelve_scenes() {
@@ -784,7 +784,7 @@ fn independent_renders_pooled_over_twelve_scenes() {
 /// 95.5–99.6 % (strongly textured 95.7 and 96.0 %); with the default disc of 3.7 px instead of
 /// 5, 20 of 52 085, 1 of 52 207, mild scenes 96.9–99.8 % (strongly textured 89.4 and 94.7 %,
 /// means 0.43 and 0.34 mm against 0.51 and 0.35). About four minutes on two cores:
-/// `cargo test --profile ci -p ris-core --test single_shot held_out_renders_pooled_over_twenty_four_scenes -- --exact --ignored --nocapture`
+/// `cargo test --profile ci -p ris-core --test core_suite single_shot::held_out_renders_pooled_over_twenty_four_scenes -- --exact --ignored --nocapture`
 #[test]
 #[ignore = "a survey of twenty-four scenes, about four minutes on two cores"]
 fn held_out_renders_pooled_over_twenty_four_scenes() {
@@ -801,7 +801,7 @@ fn held_out_renders_pooled_over_twenty_four_scenes() {
 /// vectors) with a mean of at most 0.30 mm (0.38 before the slope). About sixteen minutes on
 /// two cores. With the default disc of 3.7 px instead of 5 (and every decoder rule since):
 /// 99 of 203 692 beyond 2 mm (0.049 %), 10 of 204 234 wrong, every mild scene 96.6–99.9 %:
-/// `cargo test --profile ci -p ris-core --test single_shot earlier_held_out -- --ignored --nocapture`
+/// `cargo test --profile ci -p ris-core --test core_suite single_shot::earlier_held_out -- --ignored --nocapture`
 #[test]
 #[ignore = "a survey of ninety-six scenes, about sixteen minutes on two cores"]
 fn earlier_held_out_renders_pooled_over_ninety_six_scenes() {

@@ -2,7 +2,7 @@
 //! `config/replay-cell.toml` (every pair a `replay` backend serving the recorded capture set
 //! through the same sequencer, decoder and merge) and gives the recorded scan's clouds exactly.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::Command;

@@ -16,7 +16,7 @@ fn stderr(o: &Output) -> String {
 }
 
 /// A tiny scene (160x120 camera) so the CLI tests stay fast.
-const SCENE: &str = include_str!("../../config/scenes/tiny.toml");
+const SCENE: &str = include_str!("../../../config/scenes/tiny.toml");
 
 fn simulated(dir: &Path) -> PathBuf {
     let scene = dir.join("scene.toml");

@@ -4,7 +4,7 @@
 
 use ris_core::cloud::PointCloud;
 
-mod common;
+use crate::common;
 use common::Rng;
 
 #[test]

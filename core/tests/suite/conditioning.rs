@@ -10,7 +10,7 @@ use ris_core::inspect::{inspect, InspectParams, Report};
 use ris_core::mesh::{SignedDistance, TriangleMesh};
 use ris_core::register::Pose;
 
-mod common;
+use crate::common;
 use common::{seeds, Rng};
 
 /// Inspect a cloud sampled from `surface` over ±hx × ±hy (CAD frame), seen from a random pose

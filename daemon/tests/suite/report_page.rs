@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
 
-mod common;
+use crate::common;
 use common::{output_within, shared_cache};
 
 const CHROMIUM: &str = "/usr/bin/chromium";

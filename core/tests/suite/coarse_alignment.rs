@@ -11,7 +11,7 @@ use ris_core::inspect::{inspect, InspectParams};
 use ris_core::mesh::{SignedDistance, TriangleMesh};
 use ris_core::register::Pose;
 
-mod common;
+use crate::common;
 use common::{seeds, Rng};
 
 /// A gaussian bump.

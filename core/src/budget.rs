@@ -31,6 +31,9 @@ impl std::fmt::Display for Interruption {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Interruption::Cancelled => write!(f, "cancelled"),
+            Interruption::Overdue { limit } if *limit < Duration::from_secs(1) => {
+                write!(f, "past its deadline of {} ms", limit.as_millis().max(1))
+            }
             Interruption::Overdue { limit } => {
                 write!(f, "past its deadline of {:.1} s", limit.as_secs_f64())
             }
@@ -155,7 +158,7 @@ mod tests {
         assert!(n > 5, "{n} iterations before the deadline");
         assert!(took >= Duration::from_millis(200), "{took:?}");
         assert!(e.to_string().contains("the test stage"), "{e}");
-        assert!(e.to_string().contains("deadline of 0.2 s"), "{e}");
+        assert!(e.to_string().contains("deadline of 200 ms"), "{e}");
         assert!(check().is_ok(), "the budget ends with its stage");
         let b = Budget::new("stopped").stop_flag(stop.clone());
         within(b, || {

@@ -2,9 +2,10 @@
 //! report.json with the pass/fail verdict.
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
+use ris_core::budget::{self, Budget};
 use ris_core::cloud::PointCloud;
 use ris_core::inspect::{
     inspect, load_characteristics, load_datums, write_deviation_ply, write_deviation_png,
@@ -57,6 +58,11 @@ pub struct InspectCommand {
     /// Output directory (deviation.ply, deviation.png, report.json).
     #[arg(long)]
     pub out: PathBuf,
+    /// The most seconds the inspection may take: past it the command fails naming the
+    /// deadline, and nothing is written (a line's cycle time, or a script's guard against a
+    /// cloud far larger than expected).
+    #[arg(long, value_name = "SECONDS")]
+    pub deadline: Option<f64>,
 }
 
 /// Run `ris inspect`; the report, whose verdict gives the exit status.
@@ -66,6 +72,12 @@ pub fn command(cmd: &InspectCommand) -> Result<Report> {
         "--tolerance must be a positive number of mm, got {}",
         cmd.tolerance
     );
+    if let Some(d) = cmd.deadline {
+        anyhow::ensure!(
+            d.is_finite() && d > 0.0 && d <= 86_400.0,
+            "--deadline must be a number of seconds above 0 and at most 86400, got {d}"
+        );
+    }
     anyhow::ensure!(
         cmd.faces.is_empty() || cmd.seen_from.is_empty(),
         "give the inspected surface either as --faces or as --seen-from, not both"
@@ -144,21 +156,22 @@ pub fn command(cmd: &InspectCommand) -> Result<Report> {
         .iter()
         .map(|p| [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])])
         .collect();
-    let mut r = inspect(
-        &pts,
-        &sd,
-        &InspectParams {
-            tolerance: cmd.tolerance,
-            datums: datums.clone(),
-            min_coverage: cmd.min_coverage,
-            init: known,
-            fit_pose: known.is_none() || nominal,
-            surface,
-            characteristics,
-            ..InspectParams::default()
-        },
-    )
-    .with_context(|| format!("inspecting {}", cloud.display()))?;
+    let params = InspectParams {
+        tolerance: cmd.tolerance,
+        datums: datums.clone(),
+        min_coverage: cmd.min_coverage,
+        init: known,
+        fit_pose: known.is_none() || nominal,
+        surface,
+        characteristics,
+        ..InspectParams::default()
+    };
+    let mut budget = Budget::new("the inspection");
+    if let Some(d) = cmd.deadline {
+        budget = budget.deadline(Duration::from_secs_f64(d));
+    }
+    let mut r = budget::within(budget, || inspect(&pts, &sd, &params))
+        .with_context(|| format!("inspecting {}", cloud.display()))?;
     if outside > 0 {
         r.report.warnings.push(format!(
             "{outside} points flagged outside their sensor's calibrated volume were not inspected"

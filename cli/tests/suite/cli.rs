@@ -545,10 +545,56 @@ fn inspect_writes_deviation_map_report_and_exit_status() {
         s(&datums),
         "--tolerance",
         "1.0",
+        "--deadline",
+        "600",
         "--out",
         s(&out2),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
+    // An inspection past its deadline fails naming it and writes nothing; a deadline that is
+    // not a positive number of seconds, a pose file that is not there or a datums file with a
+    // negative radius is refused by name.
+    let never = dir.path().join("never");
+    let nope = dir.path().join("nope.toml");
+    let bad_datums = dir.path().join("bad-datums.toml");
+    std::fs::write(
+        &bad_datums,
+        "[[datum]]\nname = \"D1\"\nposition = [0.0, 0.0, 0.0]\nradius = -1.0\n",
+    )
+    .expect("write");
+    for (option, value, needles) in [
+        (
+            "--deadline",
+            "0.001",
+            ["the inspection", "past its deadline of 1 ms"],
+        ),
+        ("--deadline", "0", ["--deadline", "got 0"]),
+        ("--deadline", "NaN", ["--deadline", "got NaN"]),
+        ("--pose", s(&nope), ["--pose", "nope.toml"]),
+        (
+            "--datums",
+            s(&bad_datums),
+            ["bad-datums.toml", "datum[0].radius"],
+        ),
+    ] {
+        fails(
+            &[
+                "inspect",
+                "--cloud",
+                s(&cp),
+                "--cad",
+                s(&cad),
+                "--tolerance",
+                "1.0",
+                option,
+                value,
+                "--out",
+                s(&never),
+            ],
+            &needles,
+            &never,
+        );
+    }
     // A known pose: nothing is fitted. Where the scan lies (1 mm above the CAD) every point
     // is out of a 0.5 mm tolerance; with the transform that puts it back, only the dent is.
     let known = |pose: &str, name: &str| -> serde_json::Value {
@@ -606,24 +652,6 @@ fn inspect_writes_deviation_map_report_and_exit_status() {
             .expect("share")
             > 0.97
     );
-    let never = dir.path().join("never-pose");
-    fails(
-        &[
-            "inspect",
-            "--cloud",
-            s(&cp),
-            "--cad",
-            s(&cad),
-            "--tolerance",
-            "0.5",
-            "--pose",
-            s(&dir.path().join("nope.toml")),
-            "--out",
-            s(&never),
-        ],
-        &["--pose", "nope.toml"],
-        &never,
-    );
     // A cloud of one corner of the part measures too little of it for a verdict: not
     // measured, exit status 4, never a pass.
     let mut corner = cloud.clone();
@@ -652,30 +680,6 @@ fn inspect_writes_deviation_map_report_and_exit_status() {
     assert!(
         report["coverage"]["fraction"].as_f64().expect("coverage") < 0.3,
         "{report}"
-    );
-    // A datums file with a negative radius is refused by field.
-    std::fs::write(
-        &datums,
-        "[[datum]]\nname = \"D1\"\nposition = [0.0, 0.0, 0.0]\nradius = -1.0\n",
-    )
-    .expect("write");
-    let out3 = dir.path().join("never");
-    fails(
-        &[
-            "inspect",
-            "--cloud",
-            s(&cp),
-            "--cad",
-            s(&cad),
-            "--datums",
-            s(&datums),
-            "--tolerance",
-            "0.5",
-            "--out",
-            s(&out3),
-        ],
-        &["datums.toml", "datum[0].radius"],
-        &out3,
     );
 }
 

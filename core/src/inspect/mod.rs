@@ -207,6 +207,8 @@ pub fn inspect(
     } else if params.datums.is_empty() {
         let (pose, mode, frac, it, trusted, rim) =
             trusted_region_fit(&fit, cloud, cad, start, params, &contenders[1..]);
+        // A fit cut short by its budget is not judged.
+        crate::budget::check()?;
         // Contending coarse poses that fit the surface as well but not the rim: the rim
         // settles which one the part is in.
         if let (Some(a), Some(r)) = (
@@ -766,7 +768,9 @@ fn datum_fit(
 }
 
 /// Grow the trusted set by iterative trimming until it stops changing; where the scan reaches
-/// the CAD's open boundary, its edges hold the fit on the rim (see [`rim`]).
+/// the CAD's open boundary, its edges hold the fit on the rim (see [`rim`]). Once this thread's
+/// [`crate::budget`] is spent it stops between rounds and returns the pose it has; the caller's
+/// check then fails the inspection.
 #[allow(clippy::type_complexity)]
 fn trusted_region_fit(
     pts: &[[f64; 3]],
@@ -831,12 +835,18 @@ fn trusted_region_fit(
         .sqrt();
     lap("rough fit and noise", total);
     for _pass in 0..4 {
+        if crate::budget::spent() {
+            break;
+        }
         let before = pose;
         let seeds = flat_seeds(pts, cad, &pose);
         lap("seeds", total);
         trusted = seeds.clone();
         let mut thr = 0.5 * params.tolerance;
         for _round in 0..40 {
+            if crate::budget::spent() {
+                break;
+            }
             let dev = cad.query_all(&to_cad(pts, &pose));
             let current: Vec<f64> = dev
                 .iter()
@@ -905,7 +915,7 @@ fn trusted_region_fit(
     let set = selected(pts, &trusted);
     // Once converged: other placements that would put the scan's edges on the rim as well
     // (and the coarse alignment's runners-up) are looked for.
-    if let (Some(_), Some(edge_cloud)) = (&rim_fit, &edge_cloud) {
+    if let (Some(_), Some(edge_cloud), false) = (&rim_fit, &edge_cloud, crate::budget::spent()) {
         rim_fit = rim::register(
             edge_cloud,
             &set,

@@ -117,7 +117,8 @@ impl CaptureSet {
     }
 
     /// Read a capture directory. Every frame is checked against the camera size; a missing
-    /// required frame (white, black, column codes) is an error naming the file it looked for.
+    /// required frame (white, black, column codes; white alone for a single frame) is an error
+    /// naming the file it looked for.
     pub fn load(dir: &Path) -> Result<CaptureSet> {
         let manifest_path = dir.join(MANIFEST);
         let m: ManifestFile = read_toml(&manifest_path)?;
@@ -156,8 +157,25 @@ impl CaptureSet {
             })?;
             files.insert(p, dir.join(file));
         }
-        // Required: white, black, all column codes. Optional: inverses, rows, flats.
-        let mut wanted: Vec<(Pattern, bool)> = vec![(Pattern::White, true), (Pattern::Black, true)];
+        // Required: white, black, all column codes. Optional: inverses, rows, flats. A set of
+        // the white frame alone is one frame of a projected picture (what a single-shot or
+        // omnidirectional scan records): nothing else is required; the Gray-code decoder names
+        // what such a set lacks.
+        let single = m.frames.keys().all(|name| name == "white")
+            && !dir.join(format!("{}.png", Pattern::Black.name())).exists()
+            && !dir
+                .join(format!(
+                    "{}.png",
+                    Pattern::Gray {
+                        axis: CodeAxis::Column,
+                        bit: 0,
+                        inverse: false
+                    }
+                    .name()
+                ))
+                .exists();
+        let mut wanted: Vec<(Pattern, bool)> =
+            vec![(Pattern::White, true), (Pattern::Black, !single)];
         for axis in [CodeAxis::Column, CodeAxis::Row] {
             for bit in 0..layout.bits(axis) {
                 wanted.push((
@@ -166,7 +184,7 @@ impl CaptureSet {
                         bit,
                         inverse: false,
                     },
-                    axis == CodeAxis::Column,
+                    axis == CodeAxis::Column && !single,
                 ));
                 wanted.push((
                     Pattern::Gray {
@@ -383,6 +401,30 @@ mod tests {
             msg.contains("frame_00.png") && msg.contains("frames.white"),
             "{msg}"
         );
+    }
+
+    #[test]
+    fn a_single_frame_loads_and_a_gray_set_missing_a_frame_does_not() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let layout = CodeLayout::new(8, 4);
+        let mut set = CaptureSet::new(layout, 8, 4);
+        set.frames
+            .insert(Pattern::White, GrayImage::from_u8(8, 4, vec![200; 32]));
+        set.save(dir.path()).expect("save");
+        let back = CaptureSet::load(dir.path()).expect("a single frame loads");
+        assert_eq!(back.frames, set.frames);
+        let msg = crate::decode::decode(&back, &crate::decode::DecodeParams::default())
+            .expect_err("no code to decode")
+            .to_string();
+        assert!(msg.contains("`black`"), "{msg}");
+        // A Gray-code set is held to its required frames.
+        let dir = tempfile::tempdir().expect("tempdir");
+        tiny().save(dir.path()).expect("save");
+        std::fs::remove_file(dir.path().join("black.png")).expect("rm");
+        let msg = CaptureSet::load(dir.path())
+            .expect_err("black missing")
+            .to_string();
+        assert!(msg.contains("black.png"), "{msg}");
     }
 
     #[test]

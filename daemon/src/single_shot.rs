@@ -196,17 +196,37 @@ impl OneShot {
         frame: &FrameCloud,
         range: Option<[f64; 2]>,
     ) -> Result<(Vec<u8>, FusionRange)> {
-        let eye = match self {
+        let range = self.fusion_range(frame, range)?;
+        Ok((self.picture_in(image, frame, range)?, range))
+    }
+
+    /// The range [`OneShot::picture`] colours `frame` by: `range`, or the frame's own spread.
+    pub fn fusion_range(&self, frame: &FrameCloud, range: Option<[f64; 2]>) -> Result<FusionRange> {
+        Ok(match range {
+            Some([near, far]) => FusionRange::new(near, far, "[single_shot] range_mm")?,
+            None => FusionRange::covering(&frame.cloud, self.eye()),
+        })
+    }
+
+    /// The camera centre in the frame's cloud frame (the omnidirectional sensor's origin).
+    fn eye(&self) -> [f64; 3] {
+        match self {
             OneShot::XPoint(x) => {
                 let c = x.reconstructor.camera().center();
                 [c.x, c.y, c.z]
             }
             OneShot::Rings(_) => [0.0; 3],
-        };
-        let range = match range {
-            Some([near, far]) => FusionRange::new(near, far, "[single_shot] range_mm")?,
-            None => FusionRange::covering(&frame.cloud, eye),
-        };
+        }
+    }
+
+    /// [`OneShot::picture`] coloured by a given `range`.
+    pub fn picture_in(
+        &self,
+        image: &GrayImage,
+        frame: &FrameCloud,
+        range: FusionRange,
+    ) -> Result<Vec<u8>> {
+        let eye = self.eye();
         let png = match (self, &frame.rings) {
             (OneShot::XPoint(_), _) => fuse(image, &frame.cloud, eye, range, None)?.png()?,
             (OneShot::Rings(r), Some(d)) => panorama(&r.sensor, &r.decoder, image, d, range)?
@@ -214,6 +234,6 @@ impl OneShot {
                 .png()?,
             (OneShot::Rings(_), None) => return Err(anyhow!("the frame has no ring decoding")),
         };
-        Ok((png, range))
+        Ok(png)
     }
 }

@@ -197,7 +197,9 @@ pub enum StreamEnd<J> {
 }
 
 /// One slot per sensor holding its newest value: a put replaces a value not yet taken, and
-/// takes go round the sensors so none starves.
+/// takes go round the sensors so none starves. A slot taken is busy until [`Newest::done`]:
+/// several workers may take from it, never two values of one sensor at once, so each sensor's
+/// values are handled in the order they came.
 struct Newest<T> {
     slots: Mutex<NewestState<T>>,
     ready: Condvar,
@@ -205,6 +207,7 @@ struct Newest<T> {
 
 struct NewestState<T> {
     values: Vec<Option<T>>,
+    busy: Vec<bool>,
     closed: bool,
     next: usize,
 }
@@ -214,6 +217,7 @@ impl<T> Newest<T> {
         Newest {
             slots: Mutex::new(NewestState {
                 values: (0..n).map(|_| None).collect(),
+                busy: vec![false; n],
                 closed: false,
                 next: 0,
             }),
@@ -221,22 +225,26 @@ impl<T> Newest<T> {
         }
     }
 
+    fn lock(&self) -> std::sync::MutexGuard<'_, NewestState<T>> {
+        self.slots.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
     /// Put `v` in slot `k`; true when it replaced one that was never taken.
     fn put(&self, k: usize, v: T) -> bool {
-        let mut s = self.slots.lock().unwrap_or_else(|e| e.into_inner());
-        let replaced = s.values[k].replace(v).is_some();
-        self.ready.notify_one();
+        let replaced = self.lock().values[k].replace(v).is_some();
+        self.ready.notify_all();
         replaced
     }
 
     fn close(&self) {
-        self.slots.lock().unwrap_or_else(|e| e.into_inner()).closed = true;
+        self.lock().closed = true;
         self.ready.notify_all();
     }
 
-    /// The next value and its slot, or `None` once closed (what was not taken is dropped).
+    /// The next value of a slot that is not busy, and the slot (busy until
+    /// [`Newest::done`]); `None` once closed (what was not taken is dropped).
     fn take(&self) -> Option<(usize, T)> {
-        let mut s = self.slots.lock().unwrap_or_else(|e| e.into_inner());
+        let mut s = self.lock();
         loop {
             if s.closed {
                 return None;
@@ -244,13 +252,23 @@ impl<T> Newest<T> {
             let n = s.values.len();
             for d in 0..n {
                 let k = (s.next + d) % n;
+                if s.busy[k] {
+                    continue;
+                }
                 if let Some(v) = s.values[k].take() {
+                    s.busy[k] = true;
                     s.next = (k + 1) % n;
                     return Some((k, v));
                 }
             }
             s = self.ready.wait(s).unwrap_or_else(|e| e.into_inner());
         }
+    }
+
+    /// Slot `k`'s value taken is handled: its next may be taken.
+    fn done(&self, k: usize) {
+        self.lock().busy[k] = false;
+        self.ready.notify_all();
     }
 }
 
@@ -361,15 +379,43 @@ fn stream<J>(
             )
         })
         .collect();
+    // Workers measure the sensors' frames side by side (one frame of a sensor at a time, so its
+    // clouds go out in order) and publish each cloud as soon as it is measured; its picture is
+    // drawn and encoded by a worker of its own, off the path of the next frame (a picture
+    // not yet drawn when the next is ready is replaced, like a frame).
+    let pictures: Newest<Drawn> = Newest::new(chosen.len());
+    let workers = chosen
+        .len()
+        .min(std::thread::available_parallelism().map_or(1, |n| n.get()))
+        .max(1);
     std::thread::scope(|scope| -> Result<StreamEnd<J>> {
-        let slots = &slots;
+        let (slots, pictures) = (&slots, &pictures);
         let computers = &computers;
-        let compute = scope.spawn(move || {
-            // One thread computes every sensor in turn (each frame is data-parallel inside).
-            while let Some((k, c)) = slots.take() {
-                if let Err(e) = publish_frame(&computers[k], c, generation, control, out) {
-                    tracing::warn!(sensor = %computers[k].0, error = %format!("{e:#}"), "stream frame not published");
+        let compute: Vec<_> = (0..workers)
+            .map(|_| {
+                scope.spawn(move || {
+                    while let Some((k, c)) = slots.take() {
+                        let published =
+                            publish_cloud(&computers[k], c, generation, control, out);
+                        slots.done(k);
+                        match published {
+                            Ok(drawn) => {
+                                pictures.put(k, drawn);
+                            }
+                            Err(e) => {
+                                tracing::warn!(sensor = %computers[k].0, error = %format!("{e:#}"), "stream frame not published")
+                            }
+                        }
+                    }
+                })
+            })
+            .collect();
+        let draw = scope.spawn(move || {
+            while let Some((k, d)) = pictures.take() {
+                if let Err(e) = publish_picture(&computers[k], d, out) {
+                    tracing::warn!(sensor = %computers[k].0, error = %format!("{e:#}"), "stream picture not published");
                 }
+                pictures.done(k);
             }
         });
         let ended = (|| -> Result<StreamEnd<J>> {
@@ -456,9 +502,15 @@ fn stream<J>(
             }
         })();
         slots.close();
-        compute
-            .join()
-            .map_err(|_| anyhow!("the stream's compute thread panicked"))?;
+        let mut panicked = false;
+        for c in compute {
+            panicked |= c.join().is_err();
+        }
+        pictures.close();
+        panicked |= draw.join().is_err();
+        if panicked {
+            return Err(anyhow!("a thread of the stream panicked"));
+        }
         ended
     })
 }
@@ -485,20 +537,44 @@ type Computer = (
     Option<[f64; 2]>,
 );
 
-/// Compute one frame and publish its cloud (cell frame, binary PLY) and picture (PNG: the
-/// fusion image, or an omni sensor's panorama), each with the attachment `{"frame",
-/// "timestamp_ns", "points", "latency_ms", "range_mm"}`.
-fn publish_frame(
+/// A measured frame whose picture is still to be drawn.
+struct Drawn {
+    captured: Captured,
+    measured: crate::single_shot::FrameCloud,
+    range: ris_core::single_shot::FusionRange,
+}
+
+/// The attachment of a frame's publications: `{"frame", "timestamp_ns", "points",
+/// "latency_ms", "range_mm"}`.
+fn attachment(
+    c: &Captured,
+    points: usize,
+    latency_ms: f64,
+    range: &ris_core::single_shot::FusionRange,
+) -> String {
+    serde_json::json!({
+        "frame": c.frame,
+        "timestamp_ns": c.timestamp_ns,
+        "points": points,
+        "latency_ms": latency_ms,
+        "range_mm": [range.near, range.far],
+    })
+    .to_string()
+}
+
+/// Measure one frame and publish its cloud (cell frame, binary PLY) with its
+/// [`attachment`]; what its picture needs is returned.
+fn publish_cloud(
     (name, to_common, single, range_mm): &Computer,
     c: Captured,
     generation: u64,
     control: &StreamControl,
     out: &Publish,
-) -> Result<()> {
+) -> Result<Drawn> {
     let single = single.as_ref().map_err(|e| anyhow!("{e:#}"))?;
     let f = single.measure(&c.image)?;
-    let (picture, range) = single.picture(&c.image, &f, *range_mm)?;
-    let mut cloud = f.cloud;
+    let range = single.fusion_range(&f, *range_mm)?;
+    let mut cloud = f.cloud.clone();
     for p in cloud.points.iter_mut() {
         let v = to_common
             * nalgebra::Vector4::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]), 1.0);
@@ -507,14 +583,7 @@ fn publish_frame(
     let ply = cloud.to_ply();
     let points = cloud.len();
     let latency_ms = c.arrived.elapsed().as_secs_f64() * 1e3;
-    let attachment = serde_json::json!({
-        "frame": c.frame,
-        "timestamp_ns": c.timestamp_ns,
-        "points": points,
-        "latency_ms": latency_ms,
-        "range_mm": [range.near, range.far],
-    })
-    .to_string();
+    let attachment = attachment(&c, points, latency_ms, &range);
     control.set_latest(
         name,
         Latest {
@@ -523,22 +592,40 @@ fn publish_frame(
             cloud,
         },
     );
-    for (what, bytes) in [("cloud", ply), ("fused", picture)] {
-        let key = stream_sensor_key(out.cell, name, what);
-        out.session
-            .put(&key, bytes)
-            .attachment(attachment.clone())
-            .congestion_control(CongestionControl::Drop)
-            .wait()
-            .map_err(|e| anyhow!("publishing {key}: {e}"))?;
-    }
+    put(out, name, "cloud", ply, attachment)?;
     control.count(generation, name, |s| {
         s.published += 1;
         s.points = points;
         s.latency_ms = latency_ms;
     });
     tracing::debug!(sensor = %name, frame = c.frame, points, latency_ms, "stream frame");
-    Ok(())
+    Ok(Drawn {
+        captured: c,
+        measured: f,
+        range,
+    })
+}
+
+/// Draw a measured frame's picture (PNG: the fusion image, or an omni sensor's panorama) and
+/// publish it with the frame's [`attachment`] (its latency: to the picture's publication).
+fn publish_picture((name, _, single, _): &Computer, d: Drawn, out: &Publish) -> Result<()> {
+    let single = single.as_ref().map_err(|e| anyhow!("{e:#}"))?;
+    let png = single.picture_in(&d.captured.image, &d.measured, d.range)?;
+    let latency_ms = d.captured.arrived.elapsed().as_secs_f64() * 1e3;
+    let attachment = attachment(&d.captured, d.measured.cloud.len(), latency_ms, &d.range);
+    put(out, name, "fused", png, attachment)
+}
+
+/// Publish `bytes` on the stream key `what` of sensor `name`, dropped rather than blocking a
+/// slow link.
+fn put(out: &Publish, name: &str, what: &str, bytes: Vec<u8>, attachment: String) -> Result<()> {
+    let key = stream_sensor_key(out.cell, name, what);
+    out.session
+        .put(&key, bytes)
+        .attachment(attachment)
+        .congestion_control(CongestionControl::Drop)
+        .wait()
+        .map_err(|e| anyhow!("publishing {key}: {e}"))
 }
 
 #[cfg(test)]
@@ -583,8 +670,60 @@ mod tests {
         assert!(!slot.put(0, 3));
         // Round the sensors: slot 1 before slot 0 again.
         assert_eq!(slot.take(), Some((1, 7)));
+        // Slot 0 is busy until its value is handled.
+        slot.done(1);
+        assert!(!slot.put(1, 8));
+        assert_eq!(slot.take(), Some((1, 8)));
+        slot.done(0);
         assert_eq!(slot.take(), Some((0, 3)));
         slot.close();
         assert_eq!(slot.take(), None);
+    }
+
+    #[test]
+    fn workers_never_hold_two_values_of_one_slot() {
+        let slot = Arc::new(Newest::new(2));
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::scope(|scope| {
+            for _ in 0..3 {
+                let (slot, tx) = (slot.clone(), tx.clone());
+                scope.spawn(move || {
+                    while let Some((k, v)) = slot.take() {
+                        tx.send((k, v, true)).expect("send");
+                        std::thread::sleep(Duration::from_micros(200));
+                        tx.send((k, v, false)).expect("send");
+                        slot.done(k);
+                    }
+                });
+            }
+            for v in 0..400u32 {
+                slot.put((v % 2) as usize, v);
+                if v % 7 == 0 {
+                    std::thread::sleep(Duration::from_micros(300));
+                }
+            }
+            std::thread::sleep(Duration::from_millis(20));
+            slot.close();
+        });
+        drop(tx);
+        let mut holding = [None::<u32>; 2];
+        let mut last = [None::<u32>; 2];
+        for (k, v, start) in rx {
+            if start {
+                assert_eq!(
+                    holding[k], None,
+                    "slot {k}: {v} taken while another is held"
+                );
+                assert!(
+                    last[k].is_none_or(|l| v > l),
+                    "slot {k}: {v} after {last:?}"
+                );
+                holding[k] = Some(v);
+                last[k] = Some(v);
+            } else {
+                holding[k] = None;
+            }
+        }
+        assert!(last.iter().all(Option::is_some), "both slots served");
     }
 }

@@ -3,6 +3,8 @@
 //! on the live image. Single-shot points are sparse; each colours the pixels nearer to it than
 //! to any other point, up to a radius that makes the cells of a regular grid meet.
 
+use rayon::prelude::*;
+
 use crate::cloud::PointCloud;
 use crate::decode::hue_to_rgb;
 use crate::error::{Error, Result};
@@ -168,24 +170,32 @@ pub fn fuse_from(
     let levels = image.to_levels();
     let top = levels.iter().copied().fold(1.0f32, f32::max);
     let mut cv = Canvas::new(w + PANEL, h.max(220), [255, 255, 255]);
-    let mut coloured = 0;
-    for y in 0..h {
-        for x in 0..w {
-            let i = y * w + x;
-            let g = (levels[i] / top).clamp(0.0, 1.0);
-            let c = if owner[i] == u32::MAX {
-                let v = (g * 255.0) as u8;
-                [v, v, v]
-            } else {
-                coloured += 1;
-                // The picture's shading stays visible under the colour.
-                let c = colours[owner[i] as usize];
-                let s = 0.45 + 0.55 * g;
-                c.map(|v| (f32::from(v) * s) as u8)
-            };
-            cv.put(x as i64, y as i64, c);
-        }
-    }
+    // Row by row in parallel: the picture's pixels, coloured where a point owns them.
+    let coloured: usize = cv
+        .rgb
+        .par_chunks_mut((w + PANEL) * 3)
+        .take(h)
+        .enumerate()
+        .map(|(y, row)| {
+            let mut n = 0;
+            for x in 0..w {
+                let i = y * w + x;
+                let g = (levels[i] / top).clamp(0.0, 1.0);
+                let c = if owner[i] == u32::MAX {
+                    let v = (g * 255.0) as u8;
+                    [v, v, v]
+                } else {
+                    n += 1;
+                    // The picture's shading stays visible under the colour.
+                    let c = colours[owner[i] as usize];
+                    let s = 0.45 + 0.55 * g;
+                    c.map(|v| (f32::from(v) * s) as u8)
+                };
+                row[3 * x..3 * x + 3].copy_from_slice(&c);
+            }
+            n
+        })
+        .sum();
     draw_bar(&mut cv, w as i64, h.max(220) as i64, range, caption);
     Ok(Fused {
         width: cv.width,

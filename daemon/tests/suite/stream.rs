@@ -56,6 +56,37 @@ fn errors(
     e
 }
 
+/// Every stream publication of `cell` this session receives, as [`Sample`]s.
+fn follow(
+    session: &zenoh::Session,
+    cell: &str,
+) -> (zenoh::pubsub::Subscriber<()>, mpsc::Receiver<Sample>) {
+    let (tx, rx) = mpsc::channel::<Sample>();
+    let sub = session
+        .declare_subscriber(format!("ris/{cell}/stream/*/*"))
+        .callback(move |s| {
+            let parts: Vec<String> = s
+                .key_expr()
+                .as_str()
+                .split('/')
+                .map(str::to_string)
+                .collect();
+            let meta = s
+                .attachment()
+                .and_then(|a| serde_json::from_slice(&a.to_bytes()).ok())
+                .unwrap_or_default();
+            let _ = tx.send((
+                parts[3].clone(),
+                parts[4].clone(),
+                meta,
+                s.payload().to_bytes().into_owned(),
+            ));
+        })
+        .wait()
+        .expect("subscriber");
+    (sub, rx)
+}
+
 #[test]
 fn risd_streams_single_shot_clouds_and_answers_pixel_queries() {
     let dir = tempfile::tempdir().expect("tmp");
@@ -94,29 +125,7 @@ fn risd_streams_single_shot_clouds_and_answers_pixel_queries() {
     ]);
     risd.wait_ready(Duration::from_secs(120));
     let session = client(&endpoint);
-    let (tx, rx) = mpsc::channel::<Sample>();
-    let _sub = session
-        .declare_subscriber("ris/mock/stream/*/*")
-        .callback(move |s| {
-            let parts: Vec<String> = s
-                .key_expr()
-                .as_str()
-                .split('/')
-                .map(str::to_string)
-                .collect();
-            let meta = s
-                .attachment()
-                .and_then(|a| serde_json::from_slice(&a.to_bytes()).ok())
-                .unwrap_or_default();
-            let _ = tx.send((
-                parts[3].clone(),
-                parts[4].clone(),
-                meta,
-                s.payload().to_bytes().into_owned(),
-            ));
-        })
-        .wait()
-        .expect("subscriber");
+    let (_sub, rx) = follow(&session, "mock");
 
     // Before any stream: the pixel query says there is nothing yet.
     let early = ask(&session, "ris/mock/stream/s1/point?u=400&v=300", None);
@@ -427,4 +436,153 @@ fn risd_streams_single_shot_clouds_and_answers_pixel_queries() {
     drop(session);
     let (status, log) = risd.terminate();
     assert!(status.success(), "risd exit {status:?}: {log:#?}");
+}
+
+/// Frames recorded once (a single-shot scan of the mock cell kept with its captures) and
+/// replayed by the `replay` backend, so no rendering competes with the stream: asked for more
+/// frames than two cores compute, risd publishes every cloud it computes in frame order with
+/// increasing timestamps, replaces the frames it cannot compute instead of queueing them (the
+/// latency of the last clouds is that of the first, not a growing backlog), and each picture
+/// follows its cloud.
+#[test]
+fn replayed_frames_stream_in_order_and_are_replaced_not_queued_under_load() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let recording = dir.path().join("recording");
+    let o = Command::new(common::binary("risd"))
+        .args([
+            "--once",
+            "--mode",
+            "single-shot",
+            "--keep-captures",
+            "--scan-id",
+            "one",
+            "--data-dir",
+        ])
+        .arg(&recording)
+        .arg("--cache-dir")
+        .arg(common::shared_cache())
+        .output()
+        .expect("risd");
+    assert!(
+        o.status.success(),
+        "recording: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let captures = recording.join("scans/one/captures");
+    let config_dir = repo().join("config");
+    let config = std::fs::read_to_string(config_dir.join("replay-cell.toml"))
+        .expect("replay cell")
+        .replace(
+            "\"../target/mock-recording/scans/mock/captures/",
+            &format!("\"{}/", captures.display()),
+        )
+        .replace(
+            "\"mock-cell/",
+            &format!("\"{}/mock-cell/", config_dir.display()),
+        );
+    let config_path = dir.path().join("replay.toml");
+    std::fs::write(&config_path, &config).expect("config");
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let data = dir.path().join("data");
+    let mut risd = Risd::start(&[
+        "--config".as_ref(),
+        config_path.as_os_str(),
+        "--listen".as_ref(),
+        endpoint.as_ref(),
+        "--data-dir".as_ref(),
+        data.as_os_str(),
+    ]);
+    risd.wait_ready(Duration::from_secs(120));
+    let session = client(&endpoint);
+    let (_sub, rx) = follow(&session, "replay");
+    let o = output_within(
+        Command::new(common::binary("ris")).args([
+            "stream",
+            "--connect",
+            &endpoint,
+            "--cell",
+            "replay",
+            "--sensor",
+            "s1",
+            "--sensor",
+            "s2",
+            "--rate",
+            "100",
+            "--frames",
+            "40",
+        ]),
+        Duration::from_secs(240),
+    );
+    let said = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(
+        o.status.success(),
+        "ris stream: {said}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    eprintln!("{said}");
+    let got: Vec<Sample> = rx.try_iter().collect();
+    for sensor in ["s1", "s2"] {
+        let recorded = ris_core::cloud::PointCloud::read_ply(
+            &recording.join(format!("scans/one/{sensor}.ply")),
+        )
+        .expect("recorded cloud");
+        let of = |what: &str| -> Vec<&Sample> {
+            got.iter()
+                .filter(|s| s.0 == sensor && s.1 == what)
+                .collect()
+        };
+        let (clouds, pictures) = (of("cloud"), of("fused"));
+        assert!(clouds.len() >= 40, "{sensor}: {} clouds", clouds.len());
+        let field = |s: &Sample, k: &str| s.2[k].as_u64().expect(k);
+        let frames: Vec<u64> = clouds.iter().map(|c| field(c, "frame")).collect();
+        let ts: Vec<u64> = clouds.iter().map(|c| field(c, "timestamp_ns")).collect();
+        assert!(
+            frames.windows(2).all(|w| w[1] > w[0]) && ts.windows(2).all(|w| w[1] > w[0]),
+            "{sensor}: frames {frames:?}, timestamps {ts:?}"
+        );
+        // Asked for 100 frames a second each, more than computed: frames were replaced.
+        let last = frames[frames.len() - 1];
+        assert!(
+            last > frames.len() as u64,
+            "{sensor}: {} clouds of {last} frames, none replaced",
+            frames.len()
+        );
+        // No backlog: the last clouds wait no longer than the first ones did (a queue of
+        // every frame would make each wait longer than the one before).
+        let latency: Vec<f64> = clouds
+            .iter()
+            .map(|c| c.2["latency_ms"].as_f64().expect("latency_ms"))
+            .collect();
+        let median = |v: &[f64]| {
+            let mut v = v.to_vec();
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        let third = latency.len() / 3;
+        let (early, late) = (
+            median(&latency[..third]),
+            median(&latency[latency.len() - third..]),
+        );
+        assert!(
+            late <= 3.0 * early + 100.0,
+            "{sensor}: median latency {early:.0} ms at first, {late:.0} ms at last: {latency:?}"
+        );
+        // The replayed frame measures as it did when it was recorded.
+        for c in clouds.iter().step_by(9) {
+            let cloud = ris_core::cloud::PointCloud::from_ply(&c.3, Path::new("stream"))
+                .expect("a PLY cloud");
+            assert_eq!(cloud.len(), recorded.len(), "{sensor}: points");
+            assert_eq!(
+                cloud.pixels, recorded.pixels,
+                "{sensor}: the points' pixels"
+            );
+        }
+        // Pictures: of computed frames, in order.
+        let drawn: Vec<u64> = pictures.iter().map(|p| field(p, "frame")).collect();
+        assert!(!drawn.is_empty(), "{sensor}: no picture");
+        assert!(
+            drawn.windows(2).all(|w| w[1] > w[0]) && drawn.iter().all(|f| frames.contains(f)),
+            "{sensor}: pictures of frames {drawn:?}, clouds of {frames:?}"
+        );
+    }
 }

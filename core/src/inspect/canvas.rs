@@ -52,10 +52,7 @@ pub(crate) struct Canvas {
 
 impl Canvas {
     pub fn new(width: usize, height: usize, background: [u8; 3]) -> Canvas {
-        let mut rgb = Vec::with_capacity(width * height * 3);
-        for _ in 0..width * height {
-            rgb.extend_from_slice(&background);
-        }
+        let rgb = background.repeat(width * height);
         Canvas {
             width,
             height,

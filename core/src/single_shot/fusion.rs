@@ -145,23 +145,47 @@ pub fn fuse_from(
     let radius = radius
         .unwrap_or_else(|| 0.75 * median_spacing(&at, w, h))
         .max(0.5);
-    // Each pixel takes the nearest point within the radius.
-    let mut best = vec![f32::INFINITY; w * h];
+    // Each pixel takes the nearest point within the radius (of equally near ones, the first):
+    // row by row in parallel, over the points whose disc reaches the row, each disc's row a
+    // span whose half-width is tabled.
+    let r = radius.floor() as usize;
+    let span: Vec<usize> = (0..=r)
+        .map(|dy| {
+            let left = radius * radius - (dy * dy) as f64;
+            let mut half = left.max(0.0).sqrt().floor() as usize;
+            while ((half + 1) * (half + 1)) as f64 <= left {
+                half += 1;
+            }
+            while half > 0 && (half * half) as f64 > left {
+                half -= 1;
+            }
+            half
+        })
+        .collect();
+    let row_of = |k: u32| cloud.pixels[k as usize] as usize / w;
+    let mut by_row: Vec<u32> = (0..at.len() as u32).collect();
+    by_row.sort_by_key(|&k| row_of(k));
     let mut owner = vec![u32::MAX; w * h];
-    let r = radius.ceil() as i64;
-    for (k, &(px, py)) in at.iter().enumerate() {
-        let (cx, cy) = (px as i64, py as i64);
-        for y in (cy - r).max(0)..=(cy + r).min(h as i64 - 1) {
-            for x in (cx - r).max(0)..=(cx + r).min(w as i64 - 1) {
-                let d2 = ((x - cx).pow(2) + (y - cy).pow(2)) as f32;
-                let i = y as usize * w + x as usize;
-                if f64::from(d2) <= radius * radius && d2 < best[i] {
-                    best[i] = d2;
-                    owner[i] = k as u32;
+    owner.par_chunks_mut(w).enumerate().for_each_init(
+        || vec![usize::MAX; w],
+        |best, (y, row)| {
+            best.fill(usize::MAX);
+            let first = by_row.partition_point(|&k| row_of(k) + r < y);
+            for &k in by_row[first..].iter().take_while(|&&k| row_of(k) <= y + r) {
+                let px = cloud.pixels[k as usize] as usize;
+                let (cx, cy) = (px % w, px / w);
+                let dy = cy.abs_diff(y);
+                let half = span[dy];
+                for x in cx.saturating_sub(half)..=(cx + half).min(w - 1) {
+                    let d2 = x.abs_diff(cx).pow(2) + dy * dy;
+                    if d2 < best[x] || (d2 == best[x] && k < row[x]) {
+                        best[x] = d2;
+                        row[x] = k;
+                    }
                 }
             }
-        }
-    }
+        },
+    );
     let colours: Vec<[u8; 3]> = cloud
         .points
         .iter()

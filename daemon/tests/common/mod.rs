@@ -40,6 +40,27 @@ pub fn shared_cache() -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("prepared-pairs")
 }
 
+/// Scan the built-in mock cell once with `risd --once --keep-captures` into `data_dir` as scan
+/// `id` (with `args` added: a mode), keeping every pair's capture set for a `replay` pair to
+/// serve; the recording is `<data_dir>/scans/<id>`. Panics with risd's errors if it fails.
+pub fn record(data_dir: &std::path::Path, id: &str, args: &[&str]) -> std::path::PathBuf {
+    let o = Command::new(binary("risd"))
+        .args(["--once", "--keep-captures", "--scan-id", id])
+        .args(args)
+        .arg("--data-dir")
+        .arg(data_dir)
+        .arg("--cache-dir")
+        .arg(shared_cache())
+        .output()
+        .expect("risd");
+    assert!(
+        o.status.success(),
+        "recording: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    data_dir.join("scans").join(id)
+}
+
 /// A risd process whose stderr is collected on a thread; killed on drop.
 pub struct Risd {
     child: Child,

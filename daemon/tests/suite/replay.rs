@@ -15,25 +15,7 @@ fn a_replayed_scan_equals_the_recorded_scan() {
     // Where config/replay-cell.toml expects the recording.
     let recording = root.join("target/mock-recording");
     let _ = std::fs::remove_dir_all(&recording);
-    let o = Command::new(env!("CARGO_BIN_EXE_risd"))
-        .args([
-            "--once",
-            "--keep-captures",
-            "--scan-id",
-            "mock",
-            "--data-dir",
-        ])
-        .arg(&recording)
-        .arg("--cache-dir")
-        .arg(common::shared_cache())
-        .output()
-        .expect("risd");
-    assert!(
-        o.status.success(),
-        "recording: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    let recorded = recording.join("scans/mock");
+    let recorded = common::record(&recording, "mock", &[]);
     for s in ["s1", "s2", "s3", "s4"] {
         assert!(
             recorded

@@ -447,28 +447,12 @@ fn risd_streams_single_shot_clouds_and_answers_pixel_queries() {
 #[test]
 fn replayed_frames_stream_in_order_and_are_replaced_not_queued_under_load() {
     let dir = tempfile::tempdir().expect("tmp");
-    let recording = dir.path().join("recording");
-    let o = Command::new(common::binary("risd"))
-        .args([
-            "--once",
-            "--mode",
-            "single-shot",
-            "--keep-captures",
-            "--scan-id",
-            "one",
-            "--data-dir",
-        ])
-        .arg(&recording)
-        .arg("--cache-dir")
-        .arg(common::shared_cache())
-        .output()
-        .expect("risd");
-    assert!(
-        o.status.success(),
-        "recording: {}",
-        String::from_utf8_lossy(&o.stderr)
+    let recording = common::record(
+        &dir.path().join("recording"),
+        "one",
+        &["--mode", "single-shot"],
     );
-    let captures = recording.join("scans/one/captures");
+    let captures = recording.join("captures");
     let config_dir = repo().join("config");
     let config = std::fs::read_to_string(config_dir.join("replay-cell.toml"))
         .expect("replay cell")
@@ -522,10 +506,9 @@ fn replayed_frames_stream_in_order_and_are_replaced_not_queued_under_load() {
     eprintln!("{said}");
     let got: Vec<Sample> = rx.try_iter().collect();
     for sensor in ["s1", "s2"] {
-        let recorded = ris_core::cloud::PointCloud::read_ply(
-            &recording.join(format!("scans/one/{sensor}.ply")),
-        )
-        .expect("recorded cloud");
+        let recorded =
+            ris_core::cloud::PointCloud::read_ply(&recording.join(format!("{sensor}.ply")))
+                .expect("recorded cloud");
         let of = |what: &str| -> Vec<&Sample> {
             got.iter()
                 .filter(|s| s.0 == sensor && s.1 == what)

@@ -395,10 +395,7 @@ fn stream<J>(
             .map(|_| {
                 scope.spawn(move || {
                     while let Some((k, c)) = slots.take() {
-                        let published =
-                            publish_cloud(&computers[k], c, generation, control, out);
-                        slots.done(k);
-                        match published {
+                        match publish_cloud(&computers[k], c, generation, control, out) {
                             Ok(drawn) => {
                                 pictures.put(k, drawn);
                             }
@@ -406,6 +403,9 @@ fn stream<J>(
                                 tracing::warn!(sensor = %computers[k].0, error = %format!("{e:#}"), "stream frame not published")
                             }
                         }
+                        // Only now may the sensor's next frame be taken: its picture is put
+                        // after this one's.
+                        slots.done(k);
                     }
                 })
             })

@@ -650,6 +650,7 @@ fn fit_with_edges(
     let hints: Vec<AtomicU32> = pts.iter().map(|_| AtomicU32::new(u32::MAX)).collect();
     let index: Vec<usize> = (0..pts.len()).collect();
     let mut it = 0;
+    let mut trail: Vec<Pose> = Vec::new();
     while it < max_iter {
         it += 1;
         let centre = (pose * Point3::from(centroid)).coords;
@@ -707,11 +708,62 @@ fn fit_with_edges(
         let delta = Pose::from_parts((centre - rot * centre + t).into(), rot);
         pose = delta * pose;
         // Converged when no point within two radii moves by more than 10 nm.
-        if t.norm() + 2.0 * radius * omega.norm() < 1e-5 {
+        if t.norm() + 2.0 * radius * omega.norm() < CONVERGED_MM {
+            break;
+        }
+        trail.push(pose);
+        if let Some(mean) = cycle_mean(&trail, &centroid, radius) {
+            pose = mean;
             break;
         }
     }
     (pose, it)
+}
+
+/// A fit has converged when its step moves no point within two RMS radii of the centroid by
+/// more than this, mm.
+const CONVERGED_MM: f64 = 1e-5;
+
+/// Longest cycle of poses [`cycle_mean`] looks for, in steps.
+const LONGEST_CYCLE: usize = 8;
+
+/// The mean pose of the cycle the fit's poses (`trail`, latest last) have settled into, when
+/// they have: the latest pose is, to within [`CONVERGED_MM`] at two RMS radii of `centroid`, one
+/// it held 2 to [`LONGEST_CYCLE`] steps before. On a faceted CAD, closest points that change
+/// facets, or slide along the rim's edges, from one step to the next can send Gauss–Newton
+/// round the same few poses for ever (micrometres apart, so each step is far above the
+/// convergence threshold); the poses of the cycle straddle the optimum, and their mean is the
+/// fit's answer.
+fn cycle_mean(trail: &[Pose], centroid: &Vector3<f64>, radius: f64) -> Option<Pose> {
+    let last = trail.last()?;
+    let here = (last * Point3::from(*centroid)).coords;
+    let period = (2..=LONGEST_CYCLE.min(trail.len() - 1)).find(|&p| {
+        let past = &trail[trail.len() - 1 - p];
+        let shift = (here - (past * Point3::from(*centroid)).coords).norm();
+        let turn = (last.rotation * past.rotation.inverse()).angle();
+        shift + 2.0 * radius * turn < CONVERGED_MM
+    })?;
+    let cycle = &trail[trail.len() - period..];
+    let n = period as f64;
+    let translation = cycle
+        .iter()
+        .fold(Vector3::zeros(), |a, p| a + p.translation.vector)
+        / n;
+    // The rotations differ by micro-radians: the normalised sum of their quaternions (taken in
+    // one hemisphere) is their mean.
+    let q0 = cycle[0].rotation.into_inner();
+    let sum = cycle
+        .iter()
+        .fold(nalgebra::Quaternion::new(0.0, 0.0, 0.0, 0.0), |a, p| {
+            let q = p.rotation.into_inner();
+            if q.dot(&q0) < 0.0 {
+                a - q
+            } else {
+                a + q
+            }
+        });
+    let rotation = UnitQuaternion::from_quaternion(sum);
+    Some(Pose::from_parts(translation.into(), rotation))
 }
 
 /// The Gauss–Newton step of normal equations (rotation columns in mm, `count` rows of weight
@@ -937,4 +989,72 @@ fn trusted_region_fit(
         "trusted-region"
     };
     (pose, mode, frac, total, set, rim_fit)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::TriangleMesh;
+
+    #[test]
+    fn a_cycle_of_poses_ends_at_its_mean_and_a_drift_is_no_cycle() {
+        let centroid = Vector3::new(0.0, 0.0, 0.0);
+        let a = Pose::translation(0.0, 0.0, 0.0);
+        let b = Pose::from_parts(
+            nalgebra::Translation3::new(0.004, 0.0, 0.0),
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.0, 2e-5)),
+        );
+        let mean = cycle_mean(&[b, a, b, a], &centroid, 100.0).expect("a two-cycle");
+        assert!((mean.translation.vector.x - 0.002).abs() < 1e-12);
+        assert!((mean.rotation.angle() - 1e-5).abs() < 1e-12);
+        // three poses round and back
+        let c = Pose::translation(0.0, 0.003, 0.0);
+        assert!(cycle_mean(&[a, b, c, a], &centroid, 100.0).is_some());
+        // steady progress, however slow, is not a cycle
+        let drift: Vec<Pose> = (0..12)
+            .map(|k| Pose::translation(1e-5 * k as f64, 0.0, 0.0))
+            .collect();
+        assert!(cycle_mean(&drift, &centroid, 100.0).is_none());
+    }
+
+    /// A strip of a cylinder of radius 400 mm tessellated into 2.1 mm facets, measured with
+    /// 0.07 mm of noise on its true surface and 10 mm past its rim on either side: the points
+    /// past the rim find their closest points on its edges, whose normals turn with each step,
+    /// and Gauss–Newton goes round a cycle of poses micrometres apart. The fit must end on
+    /// the cycle, well before its limit, with the points on the surface.
+    #[test]
+    fn a_fit_to_a_faceted_cylinder_ends_before_its_limit() {
+        let r = 400.0;
+        let arc = |x: f64| (r * r - x * x).sqrt() - r;
+        let mesh =
+            TriangleMesh::height_field(180, 30, (-190.0, 190.0), (-150.0, 150.0), |x, _| arc(x));
+        let cad = SignedDistance::new(mesh);
+        let mut pts = Vec::new();
+        let mut h: u64 = 12345;
+        for i in 0..200 {
+            for j in 0..100 {
+                h = h
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                let noise = 0.07 * (((h >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0);
+                let x = -200.0 + 400.0 * i as f64 / 199.0 + 0.37 * (j % 3) as f64;
+                let y = -150.0 + 300.0 * j as f64 / 99.0;
+                pts.push([x, y, arc(x) + noise]);
+            }
+        }
+        let start = Pose::from_parts(
+            nalgebra::Translation3::new(0.3, 0.0, 0.4),
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.002, 0.0)),
+        );
+        let (pose, it) = fit_to_surface(&pts, &cad, start, 60, &|_, _| 1.0);
+        assert!(it < 40, "{it} iterations");
+        let worst = pts
+            .iter()
+            .filter(|p| p[0].abs() < 180.0)
+            .filter_map(|p| cad.query(&(pose * Point3::from(*p)).coords))
+            .map(|c| c.distance.abs())
+            .fold(0.0, f64::max);
+        // the noise, and a facet's sag of 0.0014 mm
+        assert!(worst < 0.1, "{worst} mm from the CAD after {it} iterations");
+    }
 }

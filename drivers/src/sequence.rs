@@ -136,9 +136,16 @@ pub struct Acquisition {
 
 enum Attempt {
     Retry(String),
+    /// No frame (or no acknowledgement) within the timeout.
+    Silent(DriverError),
     Disconnected(DriverError),
     Fatal(SequenceError),
 }
+
+/// Silent attempts in a row after which a slide's camera is reopened (when reconnects are
+/// left): a camera that keeps its control channel but whose stream has stopped answers every
+/// trigger and sends nothing, and only a new stream (reopening it) brings frames again.
+const SILENT_BEFORE_REOPEN: u32 = 2;
 
 struct Run<'a> {
     camera: &'a mut dyn Camera,
@@ -331,22 +338,31 @@ impl Run<'_> {
         slide: &Slide,
     ) -> Result<(GrayImage, Vec<u64>), SequenceError> {
         let mut attempts = 0;
+        let mut silent = 0;
         loop {
             attempts += 1;
-            match self.attempt(slot, slide) {
+            let outcome = self.attempt(slot, slide);
+            silent = match &outcome {
+                Err(Attempt::Silent(_)) => silent + 1,
+                _ => 0,
+            };
+            match outcome {
                 Ok(x) => return Ok(x),
                 Err(Attempt::Fatal(e)) => return Err(e),
-                Err(Attempt::Retry(reason)) => {
-                    if attempts > self.params.retries {
-                        return Err(SequenceError::Mismatch {
-                            slide: slide.name(),
-                            attempts,
-                            reason,
-                        });
-                    }
-                    tracing::warn!(slide = %slide.name(), attempt = attempts, %reason, "retrying");
-                    self.report.retries.push((slide.name(), reason));
+                Err(Attempt::Silent(e))
+                    if silent >= SILENT_BEFORE_REOPEN
+                        && self.reconnects_left > 0
+                        && attempts <= self.params.retries =>
+                {
+                    tracing::warn!(slide = %slide.name(), error = %e, silent, "no frame on triggers in a row; reopening the camera");
+                    self.reopen(
+                        slide,
+                        &format!("no frame on {silent} triggers in a row ({e})"),
+                    )?;
+                    silent = 0;
                 }
+                Err(Attempt::Retry(reason)) => self.retry(slide, attempts, reason)?,
+                Err(Attempt::Silent(e)) => self.retry(slide, attempts, e.to_string())?,
                 Err(Attempt::Disconnected(e)) => {
                     if self.reconnects_left == 0 || attempts > self.params.retries {
                         return Err(SequenceError::Driver {
@@ -354,36 +370,58 @@ impl Run<'_> {
                             source: e,
                         });
                     }
-                    self.reconnects_left -= 1;
                     tracing::warn!(error = %e, "camera disconnected; reconnecting");
-                    let reconnect = |stage: &str| {
-                        let stage = stage.to_string();
-                        move |source| SequenceError::Driver { stage, source }
-                    };
-                    self.camera
-                        .reconnect()
-                        .map_err(reconnect(&format!("reconnecting after: {e}")))?;
-                    let _ = self.camera.stop();
-                    self.camera
-                        .set_trigger(self.params.trigger.clone())
-                        .map_err(reconnect("restoring the trigger"))?;
-                    self.camera
-                        .start()
-                        .map_err(reconnect("restarting the camera"))?;
-                    // Frame counters may restart with the device.
-                    self.last_id = None;
-                    self.report.reconnects += 1;
-                    self.report
-                        .retries
-                        .push((slide.name(), format!("reconnected after: {e}")));
+                    self.reopen(slide, &e.to_string())?;
                 }
             }
         }
     }
 
+    /// Records a failed attempt to be retried, or gives up once the attempts are spent.
+    fn retry(&mut self, slide: &Slide, attempts: u32, reason: String) -> Result<(), SequenceError> {
+        if attempts > self.params.retries {
+            return Err(SequenceError::Mismatch {
+                slide: slide.name(),
+                attempts,
+                reason,
+            });
+        }
+        tracing::warn!(slide = %slide.name(), attempt = attempts, %reason, "retrying");
+        self.report.retries.push((slide.name(), reason));
+        Ok(())
+    }
+
+    /// Reconnects the camera (a new control channel and stream) and restores its trigger,
+    /// spending one of the sequence's reconnects; `why` goes into the report.
+    fn reopen(&mut self, slide: &Slide, why: &str) -> Result<(), SequenceError> {
+        self.reconnects_left -= 1;
+        let reconnect = |stage: &str| {
+            let stage = stage.to_string();
+            move |source| SequenceError::Driver { stage, source }
+        };
+        self.camera
+            .reconnect()
+            .map_err(reconnect(&format!("reconnecting after: {why}")))?;
+        let _ = self.camera.stop();
+        self.camera
+            .set_trigger(self.params.trigger.clone())
+            .map_err(reconnect("restoring the trigger"))?;
+        self.camera
+            .start()
+            .map_err(reconnect("restarting the camera"))?;
+        // Frame counters may restart with the device.
+        self.last_id = None;
+        self.report.reconnects += 1;
+        self.report
+            .retries
+            .push((slide.name(), format!("reconnected after: {why}")));
+        Ok(())
+    }
+
     fn attempt(&mut self, slot: usize, slide: &Slide) -> Result<(GrayImage, Vec<u64>), Attempt> {
         let classify = |e: DriverError| match e.kind {
-            ErrorKind::Timeout | ErrorKind::Busy => Attempt::Retry(e.to_string()),
+            ErrorKind::Timeout => Attempt::Silent(e),
+            ErrorKind::Busy => Attempt::Retry(e.to_string()),
             ErrorKind::Disconnected => Attempt::Disconnected(e),
             _ => Attempt::Fatal(SequenceError::Driver {
                 stage: format!("capturing {}", slide.name()),

@@ -118,6 +118,11 @@ fn each_transient_fault_is_detected_and_recovered() {
         (Fault::WrongPattern, 7, "wrong slide"),
         (Fault::WrongPattern, 0, "white or black"),
         (Fault::Disconnect, 8, "reconnected"),
+        (
+            Fault::StreamStall,
+            9,
+            "reconnected after: no frame on 2 triggers in a row",
+        ),
     ] {
         let mut b = bench(0.0);
         b.faults.at(at, fault);
@@ -186,6 +191,21 @@ fn persistent_faults_fail_with_the_slide_and_reason() {
         other => panic!("{other}"),
     }
     assert!(err.to_string().contains("did not come back"), "{err}");
+
+    // A stream that stops while the camera keeps answering, with no reconnect allowed: the
+    // triggers time out until the attempts are spent.
+    let mut b = bench(0.0);
+    b.faults.at(6, Fault::StreamStall);
+    let err = run(
+        &mut b,
+        &SequenceParams {
+            reconnects: 0,
+            ..params()
+        },
+    )
+    .expect_err("must fail");
+    assert!(matches!(err, SequenceError::Mismatch { .. }), "{err}");
+    assert!(err.to_string().contains("timeout"), "{err}");
 
     // The projector keeps showing the wrong slide from the fifth exposure on.
     let mut b = bench(0.0);

@@ -508,6 +508,17 @@ impl Camera for AravisCamera {
     fn reconnect(&mut self) -> Result<()> {
         let streaming = self.stream.is_some();
         self.stream = None;
+        // A camera that still answers and still takes this client for its controller (its
+        // stream stopped under a live control channel) admits no second controller: control is
+        // given up first, so that the new channel takes it and opens a new stream.
+        if let Some(gv) = self
+            .camera
+            .device()
+            .and_then(|d| gio::glib::object::Cast::downcast::<GvDevice>(d).ok())
+            .filter(|gv| gv.is_controller())
+        {
+            let _ = gv.leave_control();
+        }
         self.camera = open_device(&self.spec)?;
         self.configure()?;
         let (exposure, gain, trigger) = (self.exposure_us, self.gain_db, self.trigger.clone());

@@ -180,5 +180,11 @@ mod tests {
         cam.reconnect().expect("reconnect");
         let f = frame(&mut cam).expect("a frame after the reconnect");
         assert_eq!((f.width(), f.height()), (w, h));
+        // Reopened while this client still holds control (the sequencer's answer to a stream
+        // that stays silent under a camera that still answers): control passes to the new
+        // channel, and frames come on the new stream.
+        cam.reconnect().expect("reconnect while in control");
+        let f = frame(&mut cam).expect("a frame after reopening");
+        assert_eq!((f.width(), f.height()), (w, h));
     }
 }

@@ -19,6 +19,10 @@ pub enum Fault {
     WrongPattern,
     /// The camera disconnects at this trigger; `reconnect` brings it back unless disabled.
     Disconnect,
+    /// The stream stops at this trigger while the control channel still answers: this and
+    /// every later trigger is acknowledged but no frame comes, until `reconnect` reopens the
+    /// camera (a stream channel lost under a camera that kept its controller).
+    StreamStall,
 }
 
 /// Plans faults on a mock pair.

@@ -49,6 +49,8 @@ struct State {
     next_id: u64,
     triggers: u64,
     connected: bool,
+    /// The stream stopped ([`Fault::StreamStall`]) until a reconnect.
+    stalled: bool,
     faults: Vec<(u64, Fault)>,
     reconnectable: bool,
     /// Scans of the cell begun (a wearing scene's dent deepens with each).
@@ -162,6 +164,7 @@ fn pair(
             next_id: 1,
             triggers: 0,
             connected: true,
+            stalled: false,
             faults: Vec::new(),
             reconnectable: true,
             scans: 0,
@@ -237,6 +240,13 @@ fn expose(shared: &Shared, st: &mut State, camera: &str) -> Result<()> {
             ErrorKind::Disconnected,
             "link lost during trigger".into(),
         ));
+    }
+    if fault == Some(Fault::StreamStall) {
+        st.stalled = true;
+    }
+    if st.stalled {
+        tracing::debug!(camera, index, "mock: the stream is stalled");
+        return Ok(());
     }
     if fault == Some(Fault::MissedTrigger) {
         tracing::debug!(camera, index, "mock: trigger ignored");
@@ -459,13 +469,14 @@ impl Camera for MockCamera {
 
     fn reconnect(&mut self) -> Result<()> {
         let mut st = self.shared.lock();
-        if st.connected {
+        if st.connected && !st.stalled {
             return Ok(());
         }
-        if !st.reconnectable {
+        if !st.connected && !st.reconnectable {
             return Err(self.err(ErrorKind::Disconnected, "device did not come back"));
         }
         st.connected = true;
+        st.stalled = false;
         st.queue.clear();
         st.late = None;
         tracing::info!(camera = %self.info.id, "mock: reconnected");

@@ -1017,44 +1017,63 @@ mod tests {
         assert!(cycle_mean(&drift, &centroid, 100.0).is_none());
     }
 
-    /// A strip of a cylinder of radius 400 mm tessellated into 2.1 mm facets, measured with
-    /// 0.07 mm of noise on its true surface and 10 mm past its rim on either side: the points
-    /// past the rim find their closest points on its edges, whose normals turn with each step,
-    /// and Gauss–Newton goes round a cycle of poses micrometres apart. The fit must end on
-    /// the cycle, well before its limit, with the points on the surface.
+    /// Strips of a cylinder of radius 400 mm tessellated into facets of 1–6 mm, measured on
+    /// their true surface (with and without noise) 10–50 mm past their rim on either side: the
+    /// points past the rim find their closest points on its edges, whose normals turn with each
+    /// step, and Gauss–Newton goes round a cycle of poses micrometres apart (each of these ran
+    /// to the limit of 60 iterations without the cycle test). Every fit must end on its cycle,
+    /// well before the limit, with the points inside the rim on the surface.
     #[test]
-    fn a_fit_to_a_faceted_cylinder_ends_before_its_limit() {
+    fn fits_to_faceted_cylinders_end_before_their_limit() {
         let r = 400.0;
         let arc = |x: f64| (r * r - x * x).sqrt() - r;
-        let mesh =
-            TriangleMesh::height_field(180, 30, (-190.0, 190.0), (-150.0, 150.0), |x, _| arc(x));
-        let cad = SignedDistance::new(mesh);
-        let mut pts = Vec::new();
-        let mut h: u64 = 12345;
-        for i in 0..200 {
-            for j in 0..100 {
-                h = h
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                let noise = 0.07 * (((h >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0);
-                let x = -200.0 + 400.0 * i as f64 / 199.0 + 0.37 * (j % 3) as f64;
-                let y = -150.0 + 300.0 * j as f64 / 99.0;
-                pts.push([x, y, arc(x) + noise]);
+        // (facets across, half-width of the CAD, noise amplitude, seed of the noise)
+        for (facets, half, noise, seed) in [
+            (64usize, 200.0, 0.07, 12345u64),
+            (180, 190.0, 0.07, 12345),
+            (360, 150.0, 0.0, 0),
+        ] {
+            let mesh =
+                TriangleMesh::height_field(facets, 30, (-half, half), (-150.0, 150.0), |x, _| {
+                    arc(x)
+                });
+            let cad = SignedDistance::new(mesh);
+            let mut pts = Vec::new();
+            let mut h = seed;
+            for i in 0..200 {
+                for j in 0..100 {
+                    h = h
+                        .wrapping_mul(6364136223846793005)
+                        .wrapping_add(1442695040888963407);
+                    let u = ((h >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0;
+                    let x = -200.0 + 400.0 * i as f64 / 199.0 + 0.37 * (j % 3) as f64;
+                    let y = -150.0 + 300.0 * j as f64 / 99.0;
+                    pts.push([x, y, arc(x) + noise * u]);
+                }
             }
+            let start = Pose::from_parts(
+                nalgebra::Translation3::new(0.3, 0.0, 0.4),
+                UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.002, 0.0)),
+            );
+            let (pose, it) = fit_to_surface(&pts, &cad, start, 60, &|_, _| 1.0);
+            let case = format!("{facets} facets over ±{half} mm, noise {noise} mm");
+            assert!(it < 40, "{case}: {it} iterations");
+            if half < 190.0 {
+                // A quarter of the points 50 mm past the rim, unweighted here (the inspection
+                // trims them), pull the fit off the surface: only the ending is asserted.
+                continue;
+            }
+            let worst = pts
+                .iter()
+                .filter(|p| p[0].abs() < half - 10.0)
+                .filter_map(|p| cad.query(&(pose * Point3::from(*p)).coords))
+                .map(|c| c.distance.abs())
+                .fold(0.0, f64::max);
+            // the noise, and a facet's sag (at most 0.012 mm for 6.25 mm facets)
+            assert!(
+                worst < noise + 0.03,
+                "{case}: {worst} mm from the CAD after {it} iterations"
+            );
         }
-        let start = Pose::from_parts(
-            nalgebra::Translation3::new(0.3, 0.0, 0.4),
-            UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.002, 0.0)),
-        );
-        let (pose, it) = fit_to_surface(&pts, &cad, start, 60, &|_, _| 1.0);
-        assert!(it < 40, "{it} iterations");
-        let worst = pts
-            .iter()
-            .filter(|p| p[0].abs() < 180.0)
-            .filter_map(|p| cad.query(&(pose * Point3::from(*p)).coords))
-            .map(|c| c.distance.abs())
-            .fold(0.0, f64::max);
-        // the noise, and a facet's sag of 0.0014 mm
-        assert!(worst < 0.1, "{worst} mm from the CAD after {it} iterations");
     }
 }

@@ -174,6 +174,7 @@ impl OneShot {
                     crossings = d.peaks,
                     arcs = d.arcs,
                     named = d.arcs_named,
+                    ambiguous = d.ambiguous.len(),
                     points = d.points.len(),
                     "ring frame"
                 );

@@ -23,6 +23,8 @@ pub struct DecodeSummary {
     pub arcs: usize,
     /// Arcs named.
     pub arcs_named: usize,
+    /// Crossings left out because their ring could not be told from others.
+    pub ambiguous: usize,
     /// Seconds to decode and to triangulate.
     pub decode_s: f64,
     /// Seconds to triangulate.
@@ -40,11 +42,12 @@ impl DecodeSummary {
     /// One line for people.
     pub fn line(&self) -> String {
         format!(
-            "{} points from {} ring crossings ({} of {} arcs named) in {:.0} ms + {:.0} ms -> {}{}",
+            "{} points from {} ring crossings ({} of {} arcs named, {} crossings left out as ambiguous) in {:.0} ms + {:.0} ms -> {}{}",
             self.points,
             self.crossings,
             self.arcs_named,
             self.arcs,
+            self.ambiguous,
             1e3 * self.decode_s,
             1e3 * self.reconstruct_s,
             self.cloud,
@@ -106,6 +109,7 @@ pub fn decode_file(
         crossings: decoded.peaks,
         arcs: decoded.arcs,
         arcs_named: decoded.arcs_named,
+        ambiguous: decoded.ambiguous.len(),
         decode_s: decoded.decode_s,
         reconstruct_s: decoded.reconstruct_s,
         panorama_elevation_deg: elevation,

@@ -2132,7 +2132,6 @@ fn calibrate_omni_turns_a_two_position_session_into_ray_tables_that_decode_a_roo
 #[test]
 fn omni_decodes_rooms_rendered_by_an_independent_renderer() {
     use ris_core::geometry::Vec3;
-    use ris_core::io::npy;
     let dir = tempfile::tempdir().expect("tmp");
     let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/omni/seed.toml");
     let renderer = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/omni_room_render.py");
@@ -2193,28 +2192,8 @@ fn omni_decodes_rooms_rendered_by_an_independent_renderer() {
             "{}",
             String::from_utf8_lossy(&py.stderr)
         );
-        let cloud = out.join("cloud.ply");
-        let o = ris(&[
-            "omni",
-            "--sensor",
-            s(&config),
-            s(&out.join("image.png")),
-            "--pattern",
-            s(&rings_toml),
-            "--out",
-            s(&cloud),
-        ]);
-        assert!(o.status.success(), "{}", stderr(&o));
-        let c = ris_core::cloud::PointCloud::read_ply(&cloud).expect("cloud");
-        let col = |name: &str| {
-            c.scalars
-                .iter()
-                .find(|x| x.name == name)
-                .expect(name)
-                .values
-                .clone()
-        };
-        let (u, v, ring) = (col("u"), col("v"), col("ring"));
+        let c = decode_rendered_room(&config, &rings_toml, &out);
+        let (u, v) = (column(&c, "u"), column(&c, "v"));
         // The room as the renderer was given it, for the truth along each point's camera ray.
         let room = ris_core::omni::Room {
             half,
@@ -2246,42 +2225,8 @@ fn omni_decodes_rooms_rendered_by_an_independent_renderer() {
         errors.sort_by(f64::total_cmp);
         let median = errors[errors.len() / 2];
         let far = errors.iter().filter(|e| **e > 300.0).count() as f64 / errors.len() as f64;
-        // Ring pixels: lit pixels whose projector pixel lies within 0.5 px of a ring's centre
-        // where that ring is at least a quarter bright; reconstructed when a point of that ring
-        // lies within 1.5 px.
-        let (_, proj) = npy::read::<f32>(&out.join("projector.npy")).expect("projector.npy");
-        let [pcx, pcy] = rings.pattern.center;
-        let mut decoded: std::collections::HashMap<(i64, i64), Vec<u32>> = Default::default();
-        for i in 0..c.len() {
-            decoded
-                .entry((u[i].round() as i64, v[i].round() as i64))
-                .or_default()
-                .push(ring[i] as u32);
-        }
-        let (mut ring_pixels, mut reconstructed) = (0usize, 0usize);
-        for i in 0..640 * 480 {
-            let (pu, pv) = (f64::from(proj[2 * i]), f64::from(proj[2 * i + 1]));
-            if !pu.is_finite() {
-                continue;
-            }
-            let (rho, theta) = ((pu - pcx).hypot(pv - pcy), (pv - pcy).atan2(pu - pcx));
-            let Some(k) = rings.ring.iter().position(|r| {
-                (rho - r.radius).abs() <= 0.5
-                    && 0.5 * (1.0 + (f64::from(r.frequency) * theta + r.phase).cos()) >= 0.25
-            }) else {
-                continue;
-            };
-            ring_pixels += 1;
-            let (x, y) = ((i % 640) as i64, (i / 640) as i64);
-            let hit = (-2..=2).any(|dy| {
-                (-2..=2).any(|dx| {
-                    decoded
-                        .get(&(x + dx, y + dy))
-                        .is_some_and(|rs| rs.contains(&(k as u32)))
-                })
-            });
-            reconstructed += usize::from(hit);
-        }
+        let (ring_pixels, reconstructed) =
+            ring_pixels_reconstructed(&c, &rings, &out.join("projector.npy"), [640, 480]);
         let coverage = reconstructed as f64 / ring_pixels as f64;
         eprintln!(
             "independent room {n}: {} points, {reconstructed} of {ring_pixels} ring pixels ({:.1} %), median {median:.1} mm, {:.2} % beyond 300 mm",
@@ -2295,8 +2240,211 @@ fn omni_decodes_rooms_rendered_by_an_independent_renderer() {
             coverage
         );
         assert!(median < 25.0, "room {n}: median {median:.1} mm");
-        assert!(far < 0.06, "room {n}: {:.3} beyond 300 mm", far);
+        assert!(far < 0.03, "room {n}: {:.3} beyond 300 mm", far);
     }
+}
+
+/// The seeded room family at 2048 × 2048 (`tests/omni_room_family.py` seeds 1–6: half-sizes
+/// 1.8–4 m, off the axis by up to 30 %, 1–3 boxes), rendered by the independent renderer and
+/// decoded by `ris omni`: the share of points more than 200 mm from the renderer's truth in
+/// each band of distance from the axis, and the ring pixels reconstructed. Issue 45 asks for
+/// at most 1 % in every band with 95 % coverage; the bounds below are what the decoder holds
+/// today (0.46 % pooled, bands up to 6.3 % on box faces 1.5–2.5 m away, coverage 94.6–96.6 %).
+#[test]
+#[ignore = "long tier (`.ci/run --long`): renders six 2048x2048 rooms, about 15 minutes"]
+fn omni_room_family_at_2048_keeps_wrong_rings_rare() {
+    use ris_core::io::npy;
+    let dir = tempfile::tempdir().expect("tmp");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let config = root.join("config/omni/seed-2k.toml");
+    let rings_dir = dir.path().join("rings");
+    let o = ris(&[
+        "patterns",
+        "--rings",
+        "--projector",
+        "2048x2048",
+        "--center",
+        "1023.5,1023.5",
+        "--out",
+        s(&rings_dir),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let rings_toml = rings_dir.join("rings.toml");
+    let rings: ris_core::omni::RingPattern = ris_core::io::read_toml(&rings_toml).expect("rings");
+    let seeds = [1, 2, 3, 4, 5, 6];
+    // Render two rooms at a time (the renderer is single-threaded numpy).
+    for pair in seeds.chunks(2) {
+        let children: Vec<_> = pair
+            .iter()
+            .map(|seed| {
+                let out = dir.path().join(format!("room{seed}"));
+                std::fs::create_dir_all(&out).expect("mkdir");
+                let spec = Command::new("python3")
+                    .arg(root.join("tests/omni_room_family.py"))
+                    .arg(seed.to_string())
+                    .output()
+                    .expect("python3");
+                assert!(spec.status.success(), "{}", stderr(&spec));
+                std::fs::write(out.join("room.json"), &spec.stdout).expect("room.json");
+                Command::new("python3")
+                    .arg(root.join("tests/omni_room_render.py"))
+                    .args([&config, &rings_toml, &out.join("room.json"), &out])
+                    .stdout(std::process::Stdio::null())
+                    .spawn()
+                    .expect("python3")
+            })
+            .collect();
+        for mut c in children {
+            assert!(c.wait().expect("renderer").success());
+        }
+    }
+    let bands = [
+        0.0,
+        1500.0,
+        2000.0,
+        2500.0,
+        3000.0,
+        3500.0,
+        4000.0,
+        f64::INFINITY,
+    ];
+    let (mut far_all, mut all) = (0usize, 0usize);
+    for seed in seeds {
+        let out = dir.path().join(format!("room{seed}"));
+        let c = decode_rendered_room(&config, &rings_toml, &out);
+        let (u, v) = (column(&c, "u"), column(&c, "v"));
+        let (shape, xyz) = npy::read::<f32>(&out.join("xyz.npy")).expect("xyz.npy");
+        let (h, w) = (shape[0], shape[1]);
+        // (points, beyond 200 mm) per band of the truth's distance from the axis.
+        let mut per = vec![(0usize, 0usize); bands.len() - 1];
+        for i in 0..c.len() {
+            let x = (u[i].round().max(0.0) as usize).min(w - 1);
+            let y = (v[i].round().max(0.0) as usize).min(h - 1);
+            let t = &xyz[3 * (y * w + x)..3 * (y * w + x) + 3];
+            if !t[0].is_finite() {
+                continue;
+            }
+            let p = c.points[i];
+            let e = ((p[0] - t[0]).powi(2) + (p[1] - t[1]).powi(2) + (p[2] - t[2]).powi(2)).sqrt();
+            let r = f64::from(t[0].hypot(t[1]));
+            let b = bands.iter().rposition(|lo| r >= *lo).expect("band");
+            per[b].0 += 1;
+            per[b].1 += usize::from(e > 200.0);
+        }
+        let (ring_pixels, reconstructed) =
+            ring_pixels_reconstructed(&c, &rings, &out.join("projector.npy"), [w, h]);
+        let coverage = reconstructed as f64 / ring_pixels as f64;
+        let shares: Vec<String> = per
+            .iter()
+            .map(|(n, f)| {
+                if *n >= 1000 {
+                    format!("{:.1}", 100.0 * *f as f64 / *n as f64)
+                } else {
+                    "-".into()
+                }
+            })
+            .collect();
+        let (n, f) = per.iter().fold((0, 0), |(a, b), (n, f)| (a + n, b + f));
+        eprintln!(
+            "room {seed}: {n} points, {:.2} % beyond 200 mm; by distance from the axis (<1.5, 1.5-2, 2-2.5, 2.5-3, 3-3.5, 3.5-4, >4 m): {} %; coverage {:.1} %",
+            100.0 * f as f64 / n as f64,
+            shares.join(" / "),
+            100.0 * coverage
+        );
+        far_all += f;
+        all += n;
+        assert!(coverage > 0.94, "room {seed}: coverage {coverage:.3}");
+        for (b, (n, f)) in per.iter().enumerate() {
+            if *n >= 1000 {
+                let share = *f as f64 / *n as f64;
+                assert!(
+                    share < 0.08,
+                    "room {seed}: {:.3} beyond 200 mm at {} m from the axis",
+                    share,
+                    bands[b] / 1e3
+                );
+            }
+        }
+    }
+    let pooled = far_all as f64 / all as f64;
+    eprintln!("the family: {:.2} % beyond 200 mm", 100.0 * pooled);
+    assert!(pooled < 0.007, "{pooled:.4} beyond 200 mm");
+}
+
+/// `ris omni` on the image a renderer wrote to `out` (`image.png`), its cloud read back.
+fn decode_rendered_room(
+    config: &Path,
+    rings_toml: &Path,
+    out: &Path,
+) -> ris_core::cloud::PointCloud {
+    let cloud = out.join("cloud.ply");
+    let o = ris(&[
+        "omni",
+        "--sensor",
+        s(config),
+        s(&out.join("image.png")),
+        "--pattern",
+        s(rings_toml),
+        "--out",
+        s(&cloud),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    ris_core::cloud::PointCloud::read_ply(&cloud).expect("cloud")
+}
+
+/// A per-point scalar column of `c`.
+fn column(c: &ris_core::cloud::PointCloud, name: &str) -> Vec<f32> {
+    c.scalars
+        .iter()
+        .find(|x| x.name == name)
+        .expect(name)
+        .values
+        .clone()
+}
+
+/// Ring pixels of a rendered image (`size`: width, height) — lit pixels whose projector pixel
+/// (the renderer's `projector.npy`) lies within 0.5 px of a ring's centre where that ring is at
+/// least a quarter bright — and how many of them have a point of that ring of `c` within 2 px.
+fn ring_pixels_reconstructed(
+    c: &ris_core::cloud::PointCloud,
+    rings: &ris_core::omni::RingPattern,
+    projector_npy: &Path,
+    [w, h]: [usize; 2],
+) -> (usize, usize) {
+    let (u, v, ring) = (column(c, "u"), column(c, "v"), column(c, "ring"));
+    let (_, proj) = ris_core::io::npy::read::<f32>(projector_npy).expect("projector.npy");
+    let [pcx, pcy] = rings.pattern.center;
+    let mut decoded: std::collections::HashMap<(i64, i64), Vec<u32>> = Default::default();
+    for i in 0..c.len() {
+        decoded
+            .entry((u[i].round() as i64, v[i].round() as i64))
+            .or_default()
+            .push(ring[i] as u32);
+    }
+    let (mut ring_pixels, mut reconstructed) = (0usize, 0usize);
+    for i in 0..w * h {
+        let (pu, pv) = (f64::from(proj[2 * i]), f64::from(proj[2 * i + 1]));
+        if !pu.is_finite() {
+            continue;
+        }
+        let (rho, theta) = ((pu - pcx).hypot(pv - pcy), (pv - pcy).atan2(pu - pcx));
+        let Some(k) = rings.ring.iter().position(|r| {
+            (rho - r.radius).abs() <= 0.5
+                && 0.5 * (1.0 + (f64::from(r.frequency) * theta + r.phase).cos()) >= 0.25
+        }) else {
+            continue;
+        };
+        ring_pixels += 1;
+        let (x, y) = ((i % w) as i64, (i / w) as i64);
+        reconstructed += usize::from((-2..=2).any(|dy| {
+            (-2..=2).any(|dx| {
+                decoded
+                    .get(&(x + dx, y + dy))
+                    .is_some_and(|rs| rs.contains(&(k as u32)))
+            })
+        }));
+    }
+    (ring_pixels, reconstructed)
 }
 
 /// Write the artefact clouds of `set` as PLY (and the first sphere as E57) under `dir`.

@@ -14,7 +14,7 @@ pub mod rings;
 pub mod scene;
 
 pub use analysis::{analyse, ErrorPoint};
-pub use decode::{RingDecode, RingDecoder, RingParams, RingPoint};
+pub use decode::{Ambiguous, RingDecode, RingDecoder, RingParams, RingPoint};
 pub use file::{OmniFile, OmniSensor};
 pub use lut::RayTable;
 pub use mirror::{Mirror, MirrorUnit, Ray};

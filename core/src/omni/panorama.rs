@@ -2,6 +2,8 @@
 //! image unrolled about its centre, azimuth 0 … 360° left to right (counter-clockwise seen from
 //! above, from the sensor's +x), and each decoded point coloured by its distance from the
 //! sensor origin, red near to blue far, over the picture; black where the mirror shows nothing.
+//! Crossings whose ring could not be told from others are marked in magenta where no point is
+//! drawn, so an operator sees that a surface was left out rather than a phantom wall.
 
 use std::f64::consts::TAU;
 
@@ -11,6 +13,9 @@ use crate::cloud::PointCloud;
 use crate::image::GrayImage;
 use crate::single_shot::{fuse_from, Fused, FusionRange};
 use crate::Result;
+
+/// Colour of the crossings left out as ambiguous (magenta: not on the distance scale).
+pub const AMBIGUOUS: [u8; 3] = [255, 0, 255];
 
 /// A panorama and how its pixels map to directions.
 #[derive(Clone, Debug)]
@@ -75,18 +80,22 @@ pub fn panorama(
         image: Some([width as u32, height as u32]),
         ..PointCloud::default()
     };
-    for p in &decoded.points {
-        let x = (f64::from(p.azimuth).rem_euclid(TAU) / TAU * width as f64).floor() as usize;
-        let rho = (f64::from(p.pixel[0]) - cx).hypot(f64::from(p.pixel[1]) - cy);
+    // The panorama pixel (column, row) of a crossing at `pixel` and sensor `azimuth`.
+    let cell = |pixel: [f32; 2], azimuth: f32| {
+        let x = (f64::from(azimuth).rem_euclid(TAU) / TAU * width as f64).floor() as usize;
+        let rho = (f64::from(pixel[0]) - cx).hypot(f64::from(pixel[1]) - cy);
         let y = (rho - rho0).round();
-        if y < 0.0 || y as usize >= height || x >= width {
+        (y >= 0.0 && (y as usize) < height && x < width).then_some((x, y as usize))
+    };
+    for p in &decoded.points {
+        let Some((x, y)) = cell(p.pixel, p.azimuth) else {
             continue;
-        }
+        };
         cloud.points.push(p.point);
         cloud.confidence.push(1.0);
-        cloud.pixels.push((y as usize * width + x) as u32);
+        cloud.pixels.push((y * width + x) as u32);
     }
-    let fused = fuse_from(
+    let mut fused = fuse_from(
         &unrolled,
         &cloud,
         [0.0, 0.0, 0.0],
@@ -94,6 +103,18 @@ pub fn panorama(
         None,
         "mm from sensor",
     )?;
+    // The ambiguous crossings, where no decoded point coloured the pixel (a grey pixel).
+    for a in &decoded.ambiguous {
+        let Some((x, y)) = cell(a.pixel, a.azimuth) else {
+            continue;
+        };
+        let i = 3 * (y * fused.width + x);
+        if let Some(px) = fused.rgb.get_mut(i..i + 3) {
+            if px[0] == px[1] && px[1] == px[2] {
+                px.copy_from_slice(&AMBIGUOUS);
+            }
+        }
+    }
     let elevation = |rho: f64| {
         sensor
             .camera_ray(cx + rho, cy)

@@ -2135,20 +2135,7 @@ fn omni_decodes_rooms_rendered_by_an_independent_renderer() {
     let dir = tempfile::tempdir().expect("tmp");
     let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/omni/seed.toml");
     let renderer = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/omni_room_render.py");
-    let rings_dir = dir.path().join("rings");
-    let o = ris(&[
-        "patterns",
-        "--rings",
-        "--projector",
-        "640x480",
-        "--center",
-        "319.5,239.5",
-        "--out",
-        s(&rings_dir),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let rings_toml = rings_dir.join("rings.toml");
-    let rings: ris_core::omni::RingPattern = ris_core::io::read_toml(&rings_toml).expect("rings");
+    let (rings_toml, rings) = ring_pattern(dir.path(), "640x480", "319.5,239.5");
     let sensor = ris_core::omni::OmniSensor::load(&config).expect("sensor");
     // (half, centre, floor, ceiling, box centre, box half, noise seed)
     let rooms = [
@@ -2249,7 +2236,7 @@ fn omni_decodes_rooms_rendered_by_an_independent_renderer() {
 /// decoded by `ris omni`: the share of points more than 200 mm from the renderer's truth in
 /// each band of distance from the axis, and the ring pixels reconstructed. Issue 45 asks for
 /// at most 1 % in every band with 95 % coverage; the bounds below are what the decoder holds
-/// today (0.46 % pooled, bands up to 6.3 % on box faces 1.5–2.5 m away, coverage 94.6–96.6 %).
+/// today (0.32 % pooled, bands up to 3.6 % on box faces 1.5–2.5 m away, coverage 94.4–96.6 %).
 #[test]
 #[ignore = "long tier (`.ci/run --long`): renders six 2048x2048 rooms, about 15 minutes"]
 fn omni_room_family_at_2048_keeps_wrong_rings_rare() {
@@ -2257,20 +2244,7 @@ fn omni_room_family_at_2048_keeps_wrong_rings_rare() {
     let dir = tempfile::tempdir().expect("tmp");
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let config = root.join("config/omni/seed-2k.toml");
-    let rings_dir = dir.path().join("rings");
-    let o = ris(&[
-        "patterns",
-        "--rings",
-        "--projector",
-        "2048x2048",
-        "--center",
-        "1023.5,1023.5",
-        "--out",
-        s(&rings_dir),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let rings_toml = rings_dir.join("rings.toml");
-    let rings: ris_core::omni::RingPattern = ris_core::io::read_toml(&rings_toml).expect("rings");
+    let (rings_toml, rings) = ring_pattern(dir.path(), "2048x2048", "1023.5,1023.5");
     let seeds = [1, 2, 3, 4, 5, 6];
     // Render two rooms at a time (the renderer is single-threaded numpy).
     for pair in seeds.chunks(2) {
@@ -2358,7 +2332,7 @@ fn omni_room_family_at_2048_keeps_wrong_rings_rare() {
             if *n >= 1000 {
                 let share = *f as f64 / *n as f64;
                 assert!(
-                    share < 0.08,
+                    share < 0.05,
                     "room {seed}: {:.3} beyond 200 mm at {} m from the axis",
                     share,
                     bands[b] / 1e3
@@ -2368,7 +2342,27 @@ fn omni_room_family_at_2048_keeps_wrong_rings_rare() {
     }
     let pooled = far_all as f64 / all as f64;
     eprintln!("the family: {:.2} % beyond 200 mm", 100.0 * pooled);
-    assert!(pooled < 0.007, "{pooled:.4} beyond 200 mm");
+    assert!(pooled < 0.005, "{pooled:.4} beyond 200 mm");
+}
+
+/// `ris patterns --rings` for a projector of `size` ("WxH") centred at `centre` ("u,v"),
+/// written under `dir/rings`: the pattern file and the pattern read back.
+fn ring_pattern(dir: &Path, size: &str, centre: &str) -> (PathBuf, ris_core::omni::RingPattern) {
+    let rings_dir = dir.join("rings");
+    let o = ris(&[
+        "patterns",
+        "--rings",
+        "--projector",
+        size,
+        "--center",
+        centre,
+        "--out",
+        s(&rings_dir),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let rings_toml = rings_dir.join("rings.toml");
+    let rings = ris_core::io::read_toml(&rings_toml).expect("rings");
+    (rings_toml, rings)
 }
 
 /// `ris omni` on the image a renderer wrote to `out` (`image.png`), its cloud read back.

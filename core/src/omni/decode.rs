@@ -290,6 +290,25 @@ impl RingDecoder {
                 format!("{near}..{far} mm: need 0 < near < far"),
             ));
         }
+        let p = &params;
+        for (field, value, lo, hi) in [
+            ("min_prominence", f64::from(p.min_prominence), 0.0, f64::MAX),
+            ("max_residual", p.max_residual, 0.0, 1.0),
+            ("margin", p.margin, 1.0, f64::MAX),
+            ("min_arc", p.min_arc as f64, 2.0, f64::MAX),
+            ("max_chain_residual", p.max_chain_residual, 0.0, 1.0),
+            ("min_agreed_turn", p.min_agreed_turn, 0.0, 1.0),
+            ("member_ratio", p.member_ratio, 1.0, f64::MAX),
+            ("member_slack", p.member_slack, 0.0, 1.0),
+        ] {
+            if !(value.is_finite() && (lo..=hi).contains(&value)) {
+                return Err(Error::invalid(
+                    "ring decoder",
+                    field,
+                    format!("{value}: need {lo} … {hi}"),
+                ));
+            }
+        }
         let (cx, cy) = sensor.camera.axis_pixel().ok_or_else(|| {
             Error::invalid(
                 "omni sensor",
@@ -1344,16 +1363,22 @@ mod tests {
             far: 6000.0,
         };
         let pano = crate::omni::panorama(&s, &dec, &img, &out, range).expect("panorama");
+        // In the unrolled picture (the colour bar's panel right of it holds the key).
         let marked = pano
             .fused
             .rgb
-            .chunks_exact(3)
+            .chunks_exact(3 * pano.fused.width)
+            .flat_map(|row| row[..3 * pano.width as usize].chunks_exact(3))
             .filter(|p| *p == crate::omni::panorama::AMBIGUOUS)
             .count();
         assert!(
             marked > 0 && marked <= out.ambiguous.len(),
             "{marked} magenta pixels for {} ambiguous crossings",
             out.ambiguous.len()
+        );
+        assert!(
+            pano.fused.labels.iter().any(|l| l.text == "ambiguous"),
+            "no key names the magenta"
         );
         sc
     }
@@ -1413,6 +1438,39 @@ mod tests {
             ..RingParams::default()
         };
         assert!(RingDecoder::new(&s, &p, bad).is_err());
+        for (field, bad) in [
+            (
+                "max_residual",
+                RingParams {
+                    max_residual: f64::NAN,
+                    ..RingParams::default()
+                },
+            ),
+            (
+                "margin",
+                RingParams {
+                    margin: 0.5,
+                    ..RingParams::default()
+                },
+            ),
+            (
+                "min_arc",
+                RingParams {
+                    min_arc: 0,
+                    ..RingParams::default()
+                },
+            ),
+            (
+                "member_slack",
+                RingParams {
+                    member_slack: -0.1,
+                    ..RingParams::default()
+                },
+            ),
+        ] {
+            let e = RingDecoder::new(&s, &p, bad).expect_err(field);
+            assert!(e.to_string().contains(field), "{e}");
+        }
         for (field, change) in [
             (
                 "ring[2].width",

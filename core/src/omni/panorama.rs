@@ -102,6 +102,11 @@ pub fn panorama(
         range,
         None,
         "mm from sensor",
+        if decoded.ambiguous.is_empty() {
+            &[]
+        } else {
+            &[(AMBIGUOUS, "ambiguous")]
+        },
     )?;
     // The ambiguous crossings, where no decoded point coloured the pixel (a grey pixel).
     for a in &decoded.ambiguous {

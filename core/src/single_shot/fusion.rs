@@ -106,11 +106,12 @@ pub fn fuse(
     range: FusionRange,
     radius: Option<f64>,
 ) -> Result<Fused> {
-    fuse_from(image, cloud, eye, range, radius, "mm from camera")
+    fuse_from(image, cloud, eye, range, radius, "mm from camera", &[])
 }
 
 /// [`fuse`] with the colour bar's caption naming where distance is measured from (the
-/// omnidirectional panorama measures from the sensor's origin).
+/// omnidirectional panorama measures from the sensor's origin), and `keys`: colours off the
+/// distance scale that the caller paints afterwards, each named with a swatch under the bar.
 pub fn fuse_from(
     image: &GrayImage,
     cloud: &PointCloud,
@@ -118,6 +119,7 @@ pub fn fuse_from(
     range: FusionRange,
     radius: Option<f64>,
     caption: &str,
+    keys: &[([u8; 3], &str)],
 ) -> Result<Fused> {
     let (w, h) = (image.width as usize, image.height as usize);
     match cloud.image {
@@ -220,7 +222,7 @@ pub fn fuse_from(
             n
         })
         .sum();
-    draw_bar(&mut cv, w as i64, h.max(220) as i64, range, caption);
+    draw_bar(&mut cv, w as i64, h.max(220) as i64, range, caption, keys);
     Ok(Fused {
         width: cv.width,
         height: cv.height,
@@ -284,10 +286,18 @@ fn median_spacing(at: &[(f64, f64)], w: usize, h: usize) -> f64 {
 
 /// The colour bar right of the picture: red (near) at the top, blue (far) at the bottom,
 /// ticked at round distances with their values in mm.
-fn draw_bar(cv: &mut Canvas, x0: i64, height: i64, range: FusionRange, caption: &str) {
+fn draw_bar(
+    cv: &mut Canvas,
+    x0: i64,
+    height: i64,
+    range: FusionRange,
+    caption: &str,
+    keys: &[([u8; 3], &str)],
+) {
     const INK: [u8; 3] = [20, 20, 20];
+    const KEY: i64 = 18;
     let (bx, by) = (x0 + 16, 34i64);
-    let (bw, bh) = (22i64, (height - 60).max(100));
+    let (bw, bh) = (22i64, (height - 60 - KEY * keys.len() as i64).max(100));
     cv.text((x0 + 8) as f64, 8.0, 14.0, "distance", INK);
     for y in 0..bh {
         let d = range.near + (range.far - range.near) * y as f64 / (bh - 1) as f64;
@@ -310,6 +320,12 @@ fn draw_bar(cv: &mut Canvas, x0: i64, height: i64, range: FusionRange, caption: 
         v += step;
     }
     cv.text(x0 as f64 + 8.0, (by + bh + 8) as f64, 12.0, caption, INK);
+    for (i, (colour, name)) in keys.iter().enumerate() {
+        let y = by + bh + 8 + KEY * (i as i64 + 1);
+        cv.fill(x0 + 8, y, 12, 12, *colour);
+        cv.frame(x0 + 7, y - 1, 14, 14, INK);
+        cv.text(x0 as f64 + 26.0, y as f64, 12.0, name, INK);
+    }
 }
 
 /// 1, 2 or 5 × a power of ten, at least `raw`.

@@ -388,8 +388,17 @@ fn stream<J>(
         .len()
         .min(std::thread::available_parallelism().map_or(1, |n| n.get()))
         .max(1);
+    // Pictures are drawn by threads of their own at a lower priority: on a busy machine the
+    // clouds keep their rate and the pictures take the time left (a picture not drawn before
+    // its sensor's next is replaced).
+    let painters = rayon::ThreadPoolBuilder::new()
+        .num_threads(std::thread::available_parallelism().map_or(1, |n| n.get()))
+        .thread_name(|i| format!("risd-picture-{i}"))
+        .start_handler(|_| lower_priority())
+        .build()
+        .context("starting the picture threads")?;
     std::thread::scope(|scope| -> Result<StreamEnd<J>> {
-        let (slots, pictures) = (&slots, &pictures);
+        let (slots, pictures, painters) = (&slots, &pictures, &painters);
         let computers = &computers;
         let compute: Vec<_> = (0..workers)
             .map(|_| {
@@ -412,7 +421,7 @@ fn stream<J>(
             .collect();
         let draw = scope.spawn(move || {
             while let Some((k, d)) = pictures.take() {
-                if let Err(e) = publish_picture(&computers[k], d, out) {
+                if let Err(e) = painters.install(|| publish_picture(&computers[k], d, out)) {
                     tracing::warn!(sensor = %computers[k].0, error = %format!("{e:#}"), "stream picture not published");
                 }
                 pictures.done(k);
@@ -517,6 +526,30 @@ fn stream<J>(
 
 /// Frames in a row a pair may fail to deliver before its stream ends.
 const MAX_MISSES: u32 = 3;
+
+/// Nice value of the threads that draw the stream's pictures (the clouds' threads keep 0).
+const PICTURE_NICE: i32 = 10;
+
+/// Lower the calling thread's scheduling priority to [`PICTURE_NICE`] (Linux keeps a nice
+/// value per thread); where that is refused the thread keeps its priority.
+#[cfg(target_os = "linux")]
+#[allow(unsafe_code)] // two libc calls on the calling thread, no pointers
+fn lower_priority() {
+    // SAFETY: gettid and setpriority take plain integers and touch no memory of ours.
+    let done = unsafe {
+        let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
+        libc::setpriority(libc::PRIO_PROCESS, tid, PICTURE_NICE)
+    };
+    if done != 0 {
+        tracing::debug!(
+            error = %std::io::Error::last_os_error(),
+            "the picture thread keeps its priority"
+        );
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+fn lower_priority() {}
 
 /// Trigger `p`'s camera once and wait for the frame.
 fn grab(p: &mut crate::pair::Pair) -> Result<GrayImage> {

@@ -431,8 +431,10 @@ fn stream<J>(
             let mut numbers = vec![0u64; chosen.len()];
             let mut misses = vec![0u32; chosen.len()];
             let mut last_ns = vec![0u64; chosen.len()];
+            // Rounds start on a fixed schedule (a late wake-up is made up by the next sleep, so
+            // the rate asked is the rate kept); one more than a round behind starts it afresh.
+            let mut due = Instant::now();
             loop {
-                let round = Instant::now();
                 (out.beat)();
                 if (out.stopping)() || !control.current(generation) {
                     return Ok(StreamEnd::Stopped);
@@ -505,8 +507,12 @@ fn stream<J>(
                         });
                     }
                 }
-                if let Some(rest) = period.checked_sub(round.elapsed()) {
-                    std::thread::sleep(rest);
+                due += period;
+                let now = Instant::now();
+                match due.checked_duration_since(now) {
+                    Some(rest) => std::thread::sleep(rest),
+                    None if now - due > period => due = now,
+                    None => {}
                 }
             }
         })();

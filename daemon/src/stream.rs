@@ -384,15 +384,13 @@ fn stream<J>(
     // drawn and encoded by a worker of its own, off the path of the next frame (a picture
     // not yet drawn when the next is ready is replaced, like a frame).
     let pictures: Newest<Drawn> = Newest::new(chosen.len());
-    let workers = chosen
-        .len()
-        .min(std::thread::available_parallelism().map_or(1, |n| n.get()))
-        .max(1);
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let workers = chosen.len().min(cores).max(1);
     // Pictures are drawn by threads of their own at a lower priority: on a busy machine the
     // clouds keep their rate and the pictures take the time left (a picture not drawn before
     // its sensor's next is replaced).
     let painters = rayon::ThreadPoolBuilder::new()
-        .num_threads(std::thread::available_parallelism().map_or(1, |n| n.get()))
+        .num_threads(cores)
         .thread_name(|i| format!("risd-picture-{i}"))
         .start_handler(|_| lower_priority())
         .build()

@@ -159,15 +159,38 @@ fn risd_streams_single_shot_clouds_and_answers_pixel_queries() {
         String::from_utf8_lossy(&o.stderr)
     );
     eprintln!("{said}");
-    assert!(said.contains("s1: ") && said.contains("s2: "), "{said}");
+    for sensor in ["s1", "s2"] {
+        let counted = said
+            .lines()
+            .find_map(|l| l.strip_prefix(&format!("{sensor}: ")))
+            .and_then(|rest| rest.split(' ').next())
+            .and_then(|n| n.parse::<usize>().ok());
+        assert!(counted >= Some(20), "{sensor}: {said}");
+    }
 
-    let got: Vec<Sample> = rx.try_iter().collect();
+    // `ris stream` counted 20 clouds of each in its own session; this one is a second
+    // subscriber, whose last clouds may still be on their way, and publications drop rather than
+    // block a slow link, so under the suite's load it may miss one or two.
+    let mut got: Vec<Sample> = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let short = |got: &[Sample]| {
+        ["s1", "s2"]
+            .iter()
+            .any(|s| got.iter().filter(|g| g.0 == *s && g.1 == "cloud").count() < 20)
+    };
+    while short(&got) {
+        match rx.recv_timeout(deadline.saturating_duration_since(Instant::now())) {
+            Ok(sample) => got.push(sample),
+            Err(_) => break,
+        }
+    }
+    got.extend(rx.try_iter());
     for sensor in ["s1", "s2"] {
         let clouds: Vec<&Sample> = got
             .iter()
             .filter(|s| s.0 == sensor && s.1 == "cloud")
             .collect();
-        assert!(clouds.len() >= 20, "{sensor}: {} clouds", clouds.len());
+        assert!(clouds.len() >= 18, "{sensor}: {} clouds", clouds.len());
         let ts: Vec<u64> = clouds
             .iter()
             .map(|c| c.2["timestamp_ns"].as_u64().expect("timestamp"))

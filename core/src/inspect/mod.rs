@@ -819,6 +819,22 @@ fn datum_fit(
     (pose, "datums", n_datum as f64 / pts.len() as f64, it)
 }
 
+/// Whether the trusted-region fit's passes have settled: the motion still to come is under 2 %
+/// of `tolerance` (mm). Passes contract onto their fixed point: with each moving the pose `rate`
+/// times as far as the one before (`moved` after `last_moved`, mm at the points), the passes
+/// still to come move it `rate / (1 - rate)` times this one's motion in all. A first pass
+/// (`last_moved` infinite), or passes that do not contract by half, are judged by their own
+/// motion.
+fn passes_settled(moved: f64, last_moved: f64, tolerance: f64) -> bool {
+    let rate = moved / last_moved;
+    let to_come = if last_moved.is_finite() && rate < 0.5 {
+        moved * rate / (1.0 - rate)
+    } else {
+        moved
+    };
+    to_come < 0.02 * tolerance
+}
+
 /// Grow the trusted set by iterative trimming until it stops changing; where the scan reaches
 /// the CAD's open boundary, its edges hold the fit on the rim (see [`rim`]). Once this thread's
 /// [`crate::budget`] is spent it stops between rounds and returns the pose it has; the caller's
@@ -871,9 +887,10 @@ fn trusted_region_fit(
     // until it stops moving. Seeds taken once at a pose a deformation had pulled along the
     // surface would exclude the very features that pin the slide.
     let mut trusted = Vec::new();
-    // A pass has converged when it moves the points (their centroid, and the turn at their
-    // RMS radius) by less than 2 % of the tolerance: seeds and trimming then see the same
-    // deviations to well within the noise, and the rim's edges are found again where they were.
+    // The passes have converged when the motion still to come (of the points' centroid, and the
+    // turn at their RMS radius) is less than 2 % of the tolerance: seeds and trimming then see
+    // the same deviations to well within the noise, and the rim's edges are found again where
+    // they were.
     let centroid = Point3::from(
         pts.iter()
             .fold(Vector3::zeros(), |a, p| a + Vector3::from(*p))
@@ -886,6 +903,7 @@ fn trusted_region_fit(
         / pts.len().max(1) as f64)
         .sqrt();
     lap("rough fit and noise", total);
+    let mut last_moved = f64::INFINITY;
     for _pass in 0..4 {
         if crate::budget::spent() {
             break;
@@ -959,9 +977,11 @@ fn trusted_region_fit(
             shifted,
             "trusted-region fit: the pass moved the pose"
         );
-        if shifted + turned.to_radians() * radius < 0.02 * params.tolerance {
+        let moved = shifted + turned.to_radians() * radius;
+        if passes_settled(moved, last_moved, params.tolerance) {
             break;
         }
+        last_moved = moved;
     }
     tracing::debug!(noise, floor, "trusted-region fit");
     let set = selected(pts, &trusted);
@@ -995,6 +1015,20 @@ fn trusted_region_fit(
 mod tests {
     use super::*;
     use crate::mesh::TriangleMesh;
+
+    #[test]
+    fn passes_settle_on_the_motion_still_to_come() {
+        // the mock cell's passes at a 0.5 mm tolerance: 0.19 mm, then 0.018 mm (0.0018 to come)
+        assert!(!passes_settled(0.19, f64::INFINITY, 0.5));
+        assert!(passes_settled(0.0177, 0.19, 0.5));
+        // a first pass is judged by its own motion
+        assert!(passes_settled(0.009, f64::INFINITY, 0.5));
+        assert!(!passes_settled(0.011, f64::INFINITY, 0.5));
+        // slow contraction (rate 0.75, 0.045 mm to come) goes on
+        assert!(!passes_settled(0.015, 0.02, 0.5));
+        // growing motion goes on
+        assert!(!passes_settled(0.03, 0.02, 0.5));
+    }
 
     #[test]
     fn a_cycle_of_poses_ends_at_its_mean_and_a_drift_is_no_cycle() {

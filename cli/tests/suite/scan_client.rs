@@ -14,11 +14,18 @@ fn an_interrupted_scan_client_names_the_scan_that_goes_on() {
     let dir = tempfile::tempdir().expect("tmp");
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let mut risd = InProcess::start(cell_config(
+    let mut config = cell_config(
         &root.join("config/mock-cell.toml"),
         &endpoint,
         &dir.path().join("data"),
-    ));
+    );
+    // Each slide held 250 ms: the scan lasts about 20 s, so the interrupt reaches the client
+    // while it runs even when the test thread waits seconds for a core (the mock cell's own
+    // scan takes about 3 s, less than a loaded CI machine may take to deliver the signal).
+    for sensor in &mut config.sensors {
+        sensor.settle = Duration::from_millis(250);
+    }
+    let mut risd = InProcess::start(config);
     risd.wait_ready(Duration::from_secs(120));
     let watcher = client(&endpoint);
     let (_sub, seen) = states(&watcher, "mock");

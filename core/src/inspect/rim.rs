@@ -531,6 +531,10 @@ impl Scene<'_> {
     }
 }
 
+/// A placement that matches at least this share of the winner's rim samples matches as much
+/// rim as the winner, within the scatter of a coverage limit near the rim.
+const FLAT_EVIDENCE: f64 = 0.9;
+
 /// Register `surface` (cloud frame: the trusted points) to `cad` from `pose` together with the
 /// edges `cloud` shows on the CAD's rim; `None` when too few edges are found (the scan
 /// does not reach the rim, or the CAD has none). `tolerance` (mm): poses that place the points
@@ -654,9 +658,13 @@ pub(super) fn register(
                 exclusive(&best, &matched, &theirs),
             );
 
+            // A placement far off that matches nearly as much rim as the winner is a rival
+            // by that alone: along the motion between them the rim's evidence is flat (a
+            // slide along a saddle's valley whose rim samples all face across it).
+            let flat = theirs.len() as f64 >= FLAT_EVIDENCE * matched.len() as f64;
             (apart > tolerance.max(0.5)
                 && 2 * theirs.len() >= matched.len()
-                && new + MIN_EDGES as f64 >= 0.5 * own)
+                && (flat || new + MIN_EDGES as f64 >= 0.5 * own))
                 .then_some((
                     apart,
                     theirs.len(),

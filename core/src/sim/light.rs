@@ -47,7 +47,7 @@ impl Profile {
         Profile { start, values }
     }
 
-    #[inline]
+    #[inline(always)]
     fn sample(&self, u: f32) -> f32 {
         let x = (u - self.start) * RES;
         if x < 0.0 {
@@ -205,7 +205,7 @@ impl Light {
     }
 
     /// Light at projector coordinate (u, v).
-    #[inline]
+    #[inline(always)]
     pub fn sample(&self, u: f32, v: f32) -> f32 {
         let stripes = self.u.sample(u) * self.v.sample(v);
         match &self.mask {

@@ -356,7 +356,9 @@ impl RenderCache {
                 } else {
                     0.0
                 };
-                *px = (signal + sigma * z).round().clamp(0.0, 255.0) as u8;
+                // rounded half up (as `round` for the non-negative values that survive
+                // the clamp, without its library call)
+                *px = (signal + sigma * z + 0.5).clamp(0.0, 255.0) as u8;
             }
         });
         out

@@ -148,8 +148,31 @@ fn independent_zenoh_client_scans_twice_then_sigterm_stops_cleanly() {
 #[test]
 fn sigkill_mid_scan_leaves_no_scan_that_looks_complete() {
     let data = tempfile::tempdir().expect("tmp");
+    // The mock cell with each slide held 250 ms: the second group's acquisition lasts about
+    // 10 s, so the kill lands mid-scan even when the test thread waits seconds for a core.
+    let mock = repo().join("config/mock-cell.toml");
+    let text = std::fs::read_to_string(&mock)
+        .expect("mock cell")
+        .replace(
+            "\"mock-cell/",
+            &format!("\"{}/", repo().join("config/mock-cell").display()),
+        )
+        .replace(
+            "exposure_us = 10000.0",
+            "exposure_us = 10000.0\nsettle_ms = 250.0",
+        );
+    assert_eq!(
+        text.matches("settle_ms").count(),
+        4,
+        "the mock cell's four sensors"
+    );
+    let cell_dir = tempfile::tempdir().expect("tmp");
+    let config = cell_dir.path().join("cell.toml");
+    std::fs::write(&config, text).expect("cell file");
     let mut risd = Command::new(env!("CARGO_BIN_EXE_risd"))
-        .args(["--once", "--data-dir"])
+        .args(["--once", "--config"])
+        .arg(&config)
+        .arg("--data-dir")
         .arg(data.path())
         .arg("--cache-dir")
         .arg(common::shared_cache())

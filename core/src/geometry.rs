@@ -48,11 +48,22 @@ impl Distortion {
     /// Distort normalized coordinates.
     #[inline]
     pub fn distort(&self, x: f64, y: f64) -> (f64, f64) {
+        let (d, _, _) = self.distort_with_radial(x, y);
+        d
+    }
+
+    /// [`Distortion::distort`] with the r² and radial factor it used (for the Jacobian).
+    #[inline]
+    fn distort_with_radial(&self, x: f64, y: f64) -> ((f64, f64), f64, f64) {
         let r2 = x * x + y * y;
         let radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3));
         (
-            x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x),
-            y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y,
+            (
+                x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x),
+                y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y,
+            ),
+            r2,
+            radial,
         )
     }
 
@@ -64,10 +75,7 @@ impl Distortion {
         }
         let (mut x, mut y) = (xd, yd);
         for _ in 0..20 {
-            let r2 = x * x + y * y;
-            let radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3));
-            let fx = x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x);
-            let fy = y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y;
+            let ((fx, fy), r2, radial) = self.distort_with_radial(x, y);
             let (ex, ey) = (fx - xd, fy - yd);
             if ex * ex + ey * ey < 1e-24 {
                 break;
@@ -226,8 +234,7 @@ mod tests {
     fn the_distortion_jacobian_matches_central_differences() {
         let d = Distortion::from_array([-0.266, -0.0386, 0.0018, -0.0003, 0.2384]);
         for &(x, y) in &[(0.0, 0.0), (0.3, -0.2), (-0.5, 0.4), (0.1, 0.6)] {
-            let r2 = x * x + y * y;
-            let radial = 1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3));
+            let (_, r2, radial) = d.distort_with_radial(x, y);
             let j = d.jacobian(x, y, r2, radial);
             let h = 1e-6;
             let (ax, ay) = d.distort(x + h, y);

@@ -398,14 +398,20 @@ impl RingDecoder {
         // Elevation of the camera's ray grows or falls with image radius, and the projector's
         // with ring index; a surface's points keep their order by height in both.
         let elevation = |r: &Ray| r.direction.z.atan2(r.direction.x.hypot(r.direction.y));
-        let camera_up = {
-            let at = |rho: f64| cam.back_project(cx + rho, cy).map(|r| elevation(&r));
-            match (at(0.4 * outer), at(0.6 * outer)) {
-                (Some(a), Some(b)) => b > a,
-                _ => true,
-            }
+        // Each from the widest span of radii that back-project, the camera's within 0.4–0.6 of
+        // the mirror's image (a lens model may fail near the vertex or the rim); with one ring
+        // on the mirror the sense does not matter.
+        let rising = |elevations: &[f64]| -> Option<bool> {
+            let (first, last) = (elevations.first()?, elevations.last()?);
+            (elevations.len() >= 2 && last != first).then_some(last > first)
         };
-        let seen: Vec<f64> = pattern
+        let camera: Vec<f64> = (8..=12)
+            .filter_map(|k| {
+                cam.back_project(cx + outer * f64::from(k) / 20.0, cy)
+                    .map(|r| elevation(&r))
+            })
+            .collect();
+        let projector: Vec<f64> = pattern
             .ring
             .iter()
             .filter_map(|ring| {
@@ -415,9 +421,26 @@ impl RingDecoder {
                     .map(|r| elevation(&r))
             })
             .collect();
-        let projector_up = seen.len() < 2 || seen[seen.len() - 1] > seen[0];
+        let ring_up_outward = match (rising(&camera), rising(&projector)) {
+            (Some(camera_up), Some(projector_up)) => camera_up == projector_up,
+            (_, None) if projector.len() < 2 => true,
+            (None, _) => {
+                return Err(Error::invalid(
+                    "omni sensor",
+                    "camera",
+                    "its rays do not change elevation across the mirror's image (none back-projects, or all alike): which way the rings run cannot be told".to_string(),
+                ))
+            }
+            (_, None) => {
+                return Err(Error::invalid(
+                    "omni sensor",
+                    "projector",
+                    "the rings' rays all leave the mirror at one elevation: which way the rings run cannot be told".to_string(),
+                ))
+            }
+        };
         Ok(RingDecoder {
-            ring_up_outward: camera_up == projector_up,
+            ring_up_outward,
             sensor: sensor.clone(),
             pattern: pattern.clone(),
             params,
@@ -1497,6 +1520,15 @@ mod tests {
             let e = RingDecoder::new(&s, &bad, RingParams::default()).expect_err(field);
             assert!(e.to_string().contains(field), "{e}");
         }
+        // Rings that all leave the mirror at one elevation cannot say which way they run.
+        let mut flat = p.clone();
+        let r0 = flat.ring[0].radius;
+        flat.ring.iter_mut().for_each(|r| r.radius = r0);
+        let e = RingDecoder::new(&s, &flat, RingParams::default()).expect_err("one elevation");
+        assert!(
+            e.to_string().contains("projector") && e.to_string().contains("cannot be told"),
+            "{e}"
+        );
         let dec = RingDecoder::new(&s, &p, RingParams::default()).expect("decoder");
         let small = GrayImage::from_u8(10, 10, vec![0; 100]);
         let e = dec.decode(&small).expect_err("size");

@@ -624,14 +624,36 @@ fn fit_to_surface(
 fn fit_with_edges(
     pts: &[[f64; 3]],
     cad: &SignedDistance,
-    mut pose: Pose,
+    pose: Pose,
     max_iter: usize,
     weight: &(dyn Fn(&[f64; 3], f64) -> f64 + Sync),
     edges: &[rim::Edge],
 ) -> (Pose, usize) {
+    let hints = no_hints(pts.len());
+    fit_with_edges_hinted(pts, cad, pose, max_iter, weight, edges, &hints)
+}
+
+/// One closest-triangle hint per point of a fit, none known yet.
+fn no_hints(n: usize) -> Vec<AtomicU32> {
+    (0..n).map(|_| AtomicU32::new(u32::MAX)).collect()
+}
+
+/// [`fit_with_edges`] whose closest-point queries start from `hints` (one per point: its
+/// closest triangle in an earlier fit of the same points from a nearby pose) and leave their
+/// answers there. The hints make the queries faster, never different.
+fn fit_with_edges_hinted(
+    pts: &[[f64; 3]],
+    cad: &SignedDistance,
+    mut pose: Pose,
+    max_iter: usize,
+    weight: &(dyn Fn(&[f64; 3], f64) -> f64 + Sync),
+    edges: &[rim::Edge],
+    hints: &[AtomicU32],
+) -> (Pose, usize) {
     if pts.is_empty() {
         return (pose, 0);
     }
+    debug_assert_eq!(hints.len(), pts.len());
     // Rotations about the points' centroid, scaled by their RMS radius: every unknown in mm
     // and the strengths comparable with the conditioning report's.
     let n = pts.len() as f64;
@@ -647,7 +669,6 @@ fn fit_with_edges(
         .sqrt()
         .max(1e-6);
     // Each point's closest triangle of the previous iteration starts its next query.
-    let hints: Vec<AtomicU32> = pts.iter().map(|_| AtomicU32::new(u32::MAX)).collect();
     let index: Vec<usize> = (0..pts.len()).collect();
     let mut it = 0;
     let mut trail: Vec<Pose> = Vec::new();

@@ -22,7 +22,7 @@ use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use super::{fit_with_edges, median};
+use super::{fit_with_edges, fit_with_edges_hinted, median, no_hints};
 use crate::mesh::SignedDistance;
 use crate::register::Pose;
 use crate::spatial::KdTree;
@@ -77,7 +77,7 @@ impl CadRim {
         for (t, tri) in mesh.triangles.iter().enumerate() {
             for k in 0..3 {
                 let (a, b) = (tri[k], tri[(k + 1) % 3]);
-                if cad.is_open_edge(a, b) {
+                if cad.is_open_edge(t, k) {
                     let [pa, pb, po] = [a, b, tri[(k + 2) % 3]].map(|i| mesh.vertices[i as usize]);
                     length += (pb - pa).norm();
                     edges.push((t, pa, pb, po));
@@ -376,6 +376,8 @@ impl Scene<'_> {
                 / self.fit_set.len() as f64,
         );
         let all = |_: &[f64; 3], _: f64| 1.0;
+        // Every round refits the same points from a pose near the last.
+        let hints = no_hints(self.fit_set.len());
         let mut windows: Vec<f64> = WINDOWS.iter().map(|d| d.max(self.finest)).collect();
         windows.dedup();
         for (w, &depth) in windows.iter().enumerate() {
@@ -405,7 +407,8 @@ impl Scene<'_> {
                     break;
                 }
                 let before = pose;
-                (pose, _) = fit_with_edges(&self.fit_set, self.cad, pose, 20, &all, &edges);
+                (pose, _) =
+                    fit_with_edges_hinted(&self.fit_set, self.cad, pose, 20, &all, &edges, &hints);
                 let moved = (pose * centroid - before * centroid).norm()
                     + crate::register::rotation_angle_deg(&(pose * before.inverse())).to_radians()
                         * 1000.0;

@@ -31,6 +31,9 @@ pub struct Bvh {
     mesh: TriangleMesh,
     nodes: Vec<Node>,
     order: Vec<u32>,
+    /// The corners of `order`'s triangles, in its order: a leaf's triangles are read in one
+    /// run of memory rather than through the triangle and vertex tables.
+    corners: Vec<[Vec3; 3]>,
 }
 
 const LEAF: usize = 4;
@@ -49,6 +52,7 @@ impl Bvh {
             mesh,
             nodes: Vec::with_capacity(2 * n / LEAF + 1),
             order: (0..n as u32).collect(),
+            corners: Vec::new(),
         };
         bvh.nodes.push(Node {
             min: [0.0; 3],
@@ -99,6 +103,11 @@ impl Bvh {
             stack.push(left);
             stack.push(left + 1);
         }
+        bvh.corners = bvh
+            .order
+            .iter()
+            .map(|&t| bvh.mesh.corners(t as usize))
+            .collect();
         bvh
     }
 
@@ -112,9 +121,10 @@ impl Bvh {
         &self.nodes[i]
     }
 
-    /// Triangles of a leaf node.
-    pub(super) fn leaf(&self, node: &Node) -> &[u32] {
-        &self.order[node.start as usize..(node.start + node.count) as usize]
+    /// Triangles of a leaf node, and their corners.
+    pub(super) fn leaf(&self, node: &Node) -> (&[u32], &[[Vec3; 3]]) {
+        let range = node.start as usize..(node.start + node.count) as usize;
+        (&self.order[range.clone()], &self.corners[range])
     }
 
     /// Squared distance from `p` to the box of node `i` (0 inside).
@@ -148,9 +158,9 @@ impl Bvh {
                 continue;
             }
             if node.count > 0 {
-                for &tri in &self.order[node.start as usize..(node.start + node.count) as usize] {
-                    let [a, b, c] = self.mesh.corners(tri as usize);
-                    if let Some(t) = moller_trumbore(o, d, &a, &b, &c) {
+                let (tris, corners) = self.leaf(node);
+                for (&tri, [a, b, c]) in tris.iter().zip(corners) {
+                    if let Some(t) = moller_trumbore(o, d, a, b, c) {
                         if t > t_min && t < limit {
                             limit = t;
                             best = Some(RayHit {

@@ -24,7 +24,9 @@ pub struct SignedDistance {
     face_normals: Vec<Vec3>,
     vertex_normals: Vec<Vec3>,
     /// Summed face normals of each edge and how many triangles share it (1: open boundary).
-    edge_normals: IntMap<(u32, u32), (Vec3, u32)>,
+    edge_normals: Vec<(Vec3, u32)>,
+    /// Each triangle's edges (from corner k to k + 1) in `edge_normals`.
+    triangle_edges: Vec<[u32; 3]>,
     /// Vertices on an open boundary edge.
     boundary_vertex: Vec<bool>,
 }
@@ -51,14 +53,17 @@ impl SignedDistance {
         let n = mesh.triangles.len();
         let mut face_normals = Vec::with_capacity(n);
         let mut vertex_normals = vec![Vec3::zeros(); mesh.vertices.len()];
-        let mut edge_normals: IntMap<(u32, u32), (Vec3, u32)> =
+        let mut edge_ids: IntMap<(u32, u32), u32> =
             IntMap::with_capacity_and_hasher(n * 3 / 2, Default::default());
+        let mut edge_normals: Vec<(Vec3, u32)> = Vec::with_capacity(n * 3 / 2);
+        let mut triangle_edges = Vec::with_capacity(n);
         for (t, tri) in mesh.triangles.iter().enumerate() {
             let c = mesh.corners(t);
             let nrm = (c[1] - c[0]).cross(&(c[2] - c[0]));
             let len = nrm.norm();
             let nrm = if len > 0.0 { nrm / len } else { Vec3::zeros() };
             face_normals.push(nrm);
+            let mut ids = [0; 3];
             for k in 0..3 {
                 let (a, b, o) = (c[k], c[(k + 1) % 3], c[(k + 2) % 3]);
                 let (u, v) = ((b - a).normalize(), (o - a).normalize());
@@ -67,14 +72,20 @@ impl SignedDistance {
                     vertex_normals[tri[k] as usize] += nrm * angle;
                 }
                 let key = edge_key(tri[k], tri[(k + 1) % 3]);
-                let e = edge_normals.entry(key).or_insert((Vec3::zeros(), 0));
+                let id = *edge_ids.entry(key).or_insert_with(|| {
+                    edge_normals.push((Vec3::zeros(), 0));
+                    (edge_normals.len() - 1) as u32
+                });
+                let e = &mut edge_normals[id as usize];
                 e.0 += nrm;
                 e.1 += 1;
+                ids[k] = id;
             }
+            triangle_edges.push(ids);
         }
         let mut boundary_vertex = vec![false; mesh.vertices.len()];
-        for (&(a, b), &(_, count)) in &edge_normals {
-            if count == 1 {
+        for (&(a, b), &id) in &edge_ids {
+            if edge_normals[id as usize].1 == 1 {
                 boundary_vertex[a as usize] = true;
                 boundary_vertex[b as usize] = true;
             }
@@ -84,6 +95,7 @@ impl SignedDistance {
             face_normals,
             vertex_normals,
             edge_normals,
+            triangle_edges,
             boundary_vertex,
         }
     }
@@ -93,12 +105,13 @@ impl SignedDistance {
         self.bvh.mesh()
     }
 
-    /// Whether the edge between vertices `a` and `b` is used by one triangle only: the
-    /// surface's open boundary (a sheet's rim, a hole cut through it).
-    pub fn is_open_edge(&self, a: u32, b: u32) -> bool {
-        self.edge_normals
-            .get(&edge_key(a, b))
-            .is_some_and(|&(_, count)| count == 1)
+    /// Whether edge `k` of triangle `t` (from its corner `k` to the next) is used by that
+    /// triangle only: the surface's open boundary (a sheet's rim, a hole cut through it).
+    pub fn is_open_edge(&self, t: usize, k: usize) -> bool {
+        self.triangle_edges
+            .get(t)
+            .and_then(|ids| ids.get(k))
+            .is_some_and(|&id| self.edge_normals[id as usize].1 == 1)
     }
 
     /// Signed distance of `p` to the mesh.
@@ -115,12 +128,11 @@ impl SignedDistance {
         let ids = mesh.triangles[tri as usize];
         let (normal, beyond_boundary) = match feature {
             Feature::Face => (self.face_normals[tri as usize], false),
-            Feature::Edge(k) => self
-                .edge_normals
-                .get(&edge_key(ids[k as usize], ids[(k as usize + 1) % 3]))
-                .map_or((self.face_normals[tri as usize], false), |&(n, count)| {
-                    (n, count == 1)
-                }),
+            Feature::Edge(k) => {
+                let (n, count) =
+                    self.edge_normals[self.triangle_edges[tri as usize][k as usize] as usize];
+                (n, count == 1)
+            }
             Feature::Vertex(k) => {
                 let v = ids[k as usize] as usize;
                 (self.vertex_normals[v], self.boundary_vertex[v])
@@ -238,7 +250,9 @@ impl Bvh {
     /// Nearest triangle to `p` by best-first traversal with box-distance pruning, using
     /// `closest` for the point on a triangle: (triangle, point, feature, squared distance).
     /// `hint` (a triangle index, or out of range for none) is tried first: its distance
-    /// bounds the search.
+    /// bounds the search. Of triangles equally near (a vertex or an edge they share), the
+    /// lowest index is the answer, so the result does not depend on the hint or on the
+    /// order of the traversal.
     fn closest<F: Copy>(
         &self,
         p: &Vec3,
@@ -261,16 +275,17 @@ impl Bvh {
         while sp > 0 {
             sp -= 1;
             let (ni, box_d2) = stack[sp];
-            if box_d2 >= best_d2 {
+            // A box as near as the best so far may still hold a tie with a lower index.
+            if box_d2 > best_d2 * (1.0 + 1e-12) {
                 continue;
             }
             let node = self.node(ni as usize);
             if node.count > 0 {
-                for &tri in self.leaf(node) {
-                    let [a, b, c] = self.mesh().corners(tri as usize);
-                    let (q, f) = closest(p, &a, &b, &c);
+                let (tris, corners) = self.leaf(node);
+                for (&tri, [a, b, c]) in tris.iter().zip(corners) {
+                    let (q, f) = closest(p, a, b, c);
                     let d2 = (p - q).norm_squared();
-                    if d2 < best_d2 {
+                    if d2 < best_d2 || (d2 == best_d2 && best.as_ref().is_some_and(|b| tri < b.0)) {
                         best_d2 = d2;
                         best = Some((tri, q, f, d2));
                     }
@@ -384,6 +399,33 @@ mod tests {
         let v = mesh.vertices[5];
         assert!(sd.query(&(v * 1.1)).expect("q").distance > 0.0);
         assert!(sd.query(&(v * 0.9)).expect("q").distance < 0.0);
+    }
+
+    #[test]
+    fn a_point_equally_near_several_triangles_gets_the_same_one_whatever_the_hint() {
+        let mesh = sphere(50.0, 12);
+        let sd = SignedDistance::new(mesh.clone());
+        let mut ties = 0;
+        for (v, &x) in mesh.vertices.iter().enumerate() {
+            // Above a vertex: every triangle around it is nearest at that vertex.
+            let p = x * 1.05;
+            let around: Vec<u32> = (0..mesh.triangles.len() as u32)
+                .filter(|&t| mesh.triangles[t as usize].contains(&(v as u32)))
+                .collect();
+            let got = sd.query(&p).expect("non-empty");
+            assert_eq!(got.point, x, "vertex {v}");
+            assert_eq!(got.triangle, around[0], "vertex {v}: the lowest index");
+            for &hint in around.iter().chain(&[u32::MAX]) {
+                let h = sd.query_near(&p, hint).expect("non-empty");
+                assert_eq!(
+                    (h.triangle, h.normal),
+                    (got.triangle, got.normal),
+                    "vertex {v}, hint {hint}"
+                );
+            }
+            ties += around.len() - 1;
+        }
+        assert!(ties > 500, "{ties} ties");
     }
 
     #[test]

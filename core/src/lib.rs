@@ -29,6 +29,10 @@ pub mod single_shot;
 pub mod spatial;
 pub mod verify;
 
+// The shared test helpers name this crate as the integration tests do.
+#[cfg(test)]
+extern crate self as ris_core;
+
 /// The seeded generator the integration tests use, for the unit tests' families of cases.
 #[cfg(test)]
 #[path = "../tests/common/mod.rs"]

@@ -34,3 +34,36 @@ pub fn long_tier() -> bool {
 pub fn seeds(default: u64, long: u64) -> std::ops::Range<u64> {
     0..if long_tier() { long } else { default }
 }
+
+/// `n` points in rows on the mock cell's panel (z = −(x²/5000 + y²/8000)) over the CAD's extent, with
+/// 0.05 mm of noise, moved off the nominal pose by 0.3 mm and 0.02°.
+pub fn panel_cloud(mesh: &ris_core::mesh::TriangleMesh, n: usize) -> Vec<[f64; 3]> {
+    let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
+    for v in &mesh.vertices {
+        for k in 0..2 {
+            lo[k] = lo[k].min(v[k]);
+            hi[k] = hi[k].max(v[k]);
+        }
+    }
+    let mut rng = Rng(11u64);
+    let mut u = move || rng.uniform();
+    let off = ris_core::register::Pose::from_parts(
+        nalgebra::Vector3::new(0.3, -0.2, 0.1).into(),
+        nalgebra::UnitQuaternion::from_scaled_axis(nalgebra::Vector3::new(0.0002, -0.0003, 0.0001)),
+    );
+    // A raster like a camera's rows (merged clouds keep each sensor's scan order), jittered.
+    let (w, h) = (hi[0] - lo[0] - 4.0, hi[1] - lo[1] - 4.0);
+    let cols = ((n as f64 * w / h).sqrt().ceil() as usize).max(1);
+    (0..n)
+        .map(|k| {
+            let (i, j) = (k % cols, k / cols);
+            let rows = n.div_ceil(cols);
+            let x = lo[0] + 2.0 + w * (i as f64 + u()) / cols as f64;
+            let y = lo[1] + 2.0 + h * (j as f64 + u()) / rows as f64;
+            // Sum of 4 uniforms: near-Gaussian, σ ≈ 0.05 mm.
+            let noise = 0.05 * 1.732 * (u() + u() + u() + u() - 2.0);
+            let z = -(x * x / 5000.0 + y * y / 8000.0) + noise;
+            (off * nalgebra::Point3::new(x, y, z)).coords.into()
+        })
+        .collect()
+}

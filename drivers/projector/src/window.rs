@@ -22,6 +22,8 @@ use winit::window::{Fullscreen, Window, WindowId};
 const OPEN_TIMEOUT: Duration = Duration::from_secs(30);
 /// How long one command (upload, present) may take.
 const COMMAND_TIMEOUT: Duration = Duration::from_secs(10);
+/// How long closing a window (its GPU state released) may take.
+const CLOSE_TIMEOUT: Duration = Duration::from_secs(5);
 
 const SHADER: &str = r"
 @group(0) @binding(0) var slide: texture_2d<f32>;
@@ -56,7 +58,7 @@ enum Command {
     Open(u64, WindowOptions, mpsc::Sender<Result<()>>),
     Load(u64, Vec<Vec<u8>>, mpsc::Sender<Result<()>>),
     Show(u64, usize, mpsc::Sender<Result<u64>>),
-    Close(u64),
+    Close(u64, mpsc::Sender<Result<()>>),
 }
 
 /// A projector that is a borderless full-screen window.
@@ -263,9 +265,19 @@ impl Projector for WindowProjector {
 }
 
 impl Drop for WindowProjector {
+    /// Closes the window and waits until its GPU state is gone: a process that exits right after
+    /// would otherwise run its exit handlers while the display thread tears down the Vulkan
+    /// driver, which unloads the library those handlers are in (a crash at exit under load).
     fn drop(&mut self) {
         if self.key != 0 {
-            let _ = self.proxy.send_event(Command::Close(self.key));
+            let key = self.key;
+            if let Err(e) = self.call(
+                |tx| Command::Close(key, tx),
+                "closing the window",
+                CLOSE_TIMEOUT,
+            ) {
+                tracing::warn!(error = %e, "projector window not closed");
+            }
         }
     }
 }
@@ -659,8 +671,9 @@ impl ApplicationHandler<Command> for App {
                     None => Err(missing(key)),
                 });
             }
-            Command::Close(key) => {
-                self.windows.remove(&key);
+            Command::Close(key, tx) => {
+                drop(self.windows.remove(&key));
+                let _ = tx.send(Ok(()));
             }
         }
     }

@@ -243,6 +243,29 @@ const MAX_RINGS: usize = 4096;
 /// Radial sampling step, camera pixels.
 const STEP: f64 = 0.5;
 
+/// Which way elevation runs along a sequence of rays (the camera's by image radius, the
+/// projector's by ring).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Sense {
+    /// Never falling (`true`) or never rising (`false`), and changing.
+    Rising(bool),
+    /// Fewer than two rays, or all at one elevation.
+    Unknown,
+    /// Up and down again: no order by height.
+    Folded,
+}
+
+impl Sense {
+    fn of(elevations: &[f64]) -> Sense {
+        let steps = || elevations.windows(2).map(|w| w[1] - w[0]);
+        match (steps().any(|d| d > 0.0), steps().any(|d| d < 0.0)) {
+            (true, true) => Sense::Folded,
+            (up, down) if up || down => Sense::Rising(up),
+            _ => Sense::Unknown,
+        }
+    }
+}
+
 impl RingDecoder {
     /// Tables for `sensor` and `pattern`; fails when the pattern is not the projector's size
     /// or no ring reaches the mirror.
@@ -280,6 +303,21 @@ impl RingDecoder {
             }
             if !r.phase.is_finite() {
                 return Err(bad("phase", r.phase));
+            }
+            // Innermost first: a ring's index is its place in the order by height.
+            if let Some(inner) = k.checked_sub(1).map(|i| &pattern.ring[i]) {
+                if r.radius <= inner.radius {
+                    return Err(Error::invalid(
+                        "ring pattern",
+                        format!("ring[{k}].radius"),
+                        format!(
+                            "{} is not beyond ring[{}]'s {}: rings are listed innermost first",
+                            r.radius,
+                            k - 1,
+                            inner.radius
+                        ),
+                    ));
+                }
             }
         }
         let [near, far] = params.range_mm;
@@ -401,10 +439,6 @@ impl RingDecoder {
         // Each from the widest span of radii that back-project, the camera's within 0.4–0.6 of
         // the mirror's image (a lens model may fail near the vertex or the rim); with one ring
         // on the mirror the sense does not matter.
-        let rising = |elevations: &[f64]| -> Option<bool> {
-            let (first, last) = (elevations.first()?, elevations.last()?);
-            (elevations.len() >= 2 && last != first).then_some(last > first)
-        };
         let camera: Vec<f64> = (8..=12)
             .filter_map(|k| {
                 cam.back_project(cx + outer * f64::from(k) / 20.0, cy)
@@ -421,17 +455,31 @@ impl RingDecoder {
                     .map(|r| elevation(&r))
             })
             .collect();
-        let ring_up_outward = match (rising(&camera), rising(&projector)) {
-            (Some(camera_up), Some(projector_up)) => camera_up == projector_up,
-            (_, None) if projector.len() < 2 => true,
-            (None, _) => {
+        let fold = |unit: &str, what: &str| {
+            Error::invalid(
+                "omni sensor",
+                unit,
+                format!("{what} rise and fall again (a folded mirror image): a surface's order by height is not kept, so the rings cannot be told apart by it"),
+            )
+        };
+        let ring_up_outward = match (Sense::of(&camera), Sense::of(&projector)) {
+            (Sense::Folded, _) => {
+                return Err(fold(
+                    "camera",
+                    "its rays' elevations across the mirror's image",
+                ))
+            }
+            (_, Sense::Folded) => return Err(fold("projector", "the rings' elevations")),
+            (Sense::Rising(camera_up), Sense::Rising(projector_up)) => camera_up == projector_up,
+            (_, Sense::Unknown) if projector.len() < 2 => true,
+            (Sense::Unknown, _) => {
                 return Err(Error::invalid(
                     "omni sensor",
                     "camera",
                     "its rays do not change elevation across the mirror's image (none back-projects, or all alike): which way the rings run cannot be told".to_string(),
                 ))
             }
-            (_, None) => {
+            (_, Sense::Unknown) => {
                 return Err(Error::invalid(
                     "omni sensor",
                     "projector",
@@ -1454,6 +1502,18 @@ mod tests {
     }
 
     #[test]
+    fn the_sense_of_elevation_is_told_from_every_step_and_a_fold_is_named() {
+        assert_eq!(Sense::of(&[0.1, 0.2, 0.2, 0.5]), Sense::Rising(true));
+        assert_eq!(Sense::of(&[0.5, 0.2, -0.3]), Sense::Rising(false));
+        // The ends alone would call these rising.
+        assert_eq!(Sense::of(&[0.1, 0.6, 0.4, 0.3, 0.2]), Sense::Folded);
+        assert_eq!(Sense::of(&[0.1, 0.0, 0.3]), Sense::Folded);
+        assert_eq!(Sense::of(&[0.3, 0.3, 0.3]), Sense::Unknown);
+        assert_eq!(Sense::of(&[0.3]), Sense::Unknown);
+        assert_eq!(Sense::of(&[]), Sense::Unknown);
+    }
+
+    #[test]
     fn wrong_inputs_are_refused_by_name() {
         let s = sensor("seed.toml");
         let p = RingPattern::design(320, 240, [159.5, 119.5]).expect("design");
@@ -1520,15 +1580,19 @@ mod tests {
             let e = RingDecoder::new(&s, &bad, RingParams::default()).expect_err(field);
             assert!(e.to_string().contains(field), "{e}");
         }
-        // Rings that all leave the mirror at one elevation cannot say which way they run.
+        // Rings at one radius, or out of order: a ring's index must be its order by height.
         let mut flat = p.clone();
         let r0 = flat.ring[0].radius;
         flat.ring.iter_mut().for_each(|r| r.radius = r0);
-        let e = RingDecoder::new(&s, &flat, RingParams::default()).expect_err("one elevation");
+        let e = RingDecoder::new(&s, &flat, RingParams::default()).expect_err("one radius");
         assert!(
-            e.to_string().contains("projector") && e.to_string().contains("cannot be told"),
+            e.to_string().contains("ring[1].radius") && e.to_string().contains("innermost first"),
             "{e}"
         );
+        let mut swapped = p.clone();
+        swapped.ring.swap(3, 4);
+        let e = RingDecoder::new(&s, &swapped, RingParams::default()).expect_err("swapped");
+        assert!(e.to_string().contains("ring[4].radius"), "{e}");
         let dec = RingDecoder::new(&s, &p, RingParams::default()).expect("decoder");
         let small = GrayImage::from_u8(10, 10, vec![0; 100]);
         let e = dec.decode(&small).expect_err("size");

@@ -9,6 +9,7 @@ use std::sync::Arc;
 use anyhow::{Context, Result};
 use ris_core::cloud::PointCloud;
 use ris_core::decode::{decode, DecodeParams};
+use ris_core::pattern::CodeLayout;
 use ris_core::sensor::Reconstructor;
 use ris_core::sim::accuracy::evaluate_where;
 use ris_core::sim::{Scene, Simulator};
@@ -62,7 +63,8 @@ pub fn completeness(scene_path: &Path, out: Option<&Path>) -> Result<Completenes
     let scene = Scene::load(scene_path)
         .with_context(|| format!("reading scene {}", scene_path.display()))?;
     let params = DecodeParams::default();
-    let layout = Simulator::new(scene.reference()).layout();
+    // The projector's layout (what `Simulator::layout` gives, without rendering a scene for it).
+    let layout = CodeLayout::new(scene.projector.width, scene.projector.height);
     // The reference recording is made on a white board, whatever the table is.
     let board = Simulator::new(scene.sprayed().reference());
     let reference = decode(&board.capture(&layout, 1000, &|_, _| {}), &params)
@@ -78,8 +80,12 @@ pub fn completeness(scene_path: &Path, out: Option<&Path>) -> Result<Completenes
 
     let mut clouds: Vec<PointCloud> = Vec::new();
     let mut naive_frames = 0;
-    for (name, variant) in [("sprayed", scene.sprayed()), ("naive", scene.clone())] {
-        let sim = Arc::new(Simulator::new(variant));
+    // The naive and the adaptive scans see the same scene: one renderer serves both.
+    let naive = Arc::new(Simulator::new(scene.clone()));
+    for (name, sim) in [
+        ("sprayed", Arc::new(Simulator::new(scene.sprayed()))),
+        ("naive", Arc::clone(&naive)),
+    ] {
         let (mut cam, mut proj, _) = simulated_pair(sim, name, 1);
         let pb = progress::bar(slides.len() as u64, name);
         let acq = acquire(&mut cam, &mut proj, &layout, &slides, &seq, &mut |p| {
@@ -97,9 +103,8 @@ pub fn completeness(scene_path: &Path, out: Option<&Path>) -> Result<Completenes
             "scan reconstructed"
         );
     }
-    let sim = Arc::new(Simulator::new(scene.clone()));
-    let truth = sim.cache.truth.clone();
-    let (mut cam, mut proj, _) = simulated_pair(sim, "adaptive", 2);
+    let truth = naive.cache.truth.clone();
+    let (mut cam, mut proj, _) = simulated_pair(naive, "adaptive", 2);
     let pb = progress::bar(0, "adaptive");
     let scan = adaptive_scan(
         &mut cam,

@@ -23,6 +23,7 @@ impl Profile {
         let end = vals.len() as f32 - 0.5 + margin;
         let n = ((end - start) * RES).ceil() as usize + 1;
         let values = (0..n)
+            .into_par_iter()
             .map(|k| {
                 let u = start + k as f32 / RES;
                 if sigma <= 1e-6 {
@@ -35,13 +36,16 @@ impl Profile {
                 }
                 let lo = ((u - 4.0 * sigma - 1.0).floor().max(0.0)) as usize;
                 let hi = ((u + 4.0 * sigma + 1.0).ceil().max(0.0) as usize).min(vals.len());
-                (lo..hi)
-                    .map(|i| {
-                        vals[i]
-                            * (phi((i as f32 + 0.5 - u) / sigma)
-                                - phi((i as f32 - 0.5 - u) / sigma))
-                    })
-                    .sum()
+                // Pixel i's upper edge is pixel i + 1's lower edge (i + 0.5 and (i + 1) − 0.5
+                // are the same float): one CDF evaluation per edge, not two.
+                let mut lower = phi((lo as f32 - 0.5 - u) / sigma);
+                let mut sum = 0.0;
+                for (i, v) in vals.iter().enumerate().take(hi).skip(lo) {
+                    let upper = phi((i as f32 + 0.5 - u) / sigma);
+                    sum += v * (upper - lower);
+                    lower = upper;
+                }
+                sum
             })
             .collect();
         Profile { start, values }

@@ -463,6 +463,8 @@ impl RingDecoder {
             )
         };
         let ring_up_outward = match (Sense::of(&camera), Sense::of(&projector)) {
+            // One ring on the mirror: nothing to tell apart, whatever the camera's profile.
+            (_, Sense::Unknown) if projector.len() < 2 => true,
             (Sense::Folded, _) => {
                 return Err(fold(
                     "camera",
@@ -471,7 +473,6 @@ impl RingDecoder {
             }
             (_, Sense::Folded) => return Err(fold("projector", "the rings' elevations")),
             (Sense::Rising(camera_up), Sense::Rising(projector_up)) => camera_up == projector_up,
-            (_, Sense::Unknown) if projector.len() < 2 => true,
             (Sense::Unknown, _) => {
                 return Err(Error::invalid(
                     "omni sensor",

@@ -205,6 +205,10 @@ fn classify(key: &str, payload: Vec<u8>) -> Option<(String, Item)> {
 }
 
 async fn scan(args: &ScanArgs) -> Result<Arrived> {
+    // Registered before the scan is asked for, and kept: an interrupt that arrives while a
+    // message is handled (between two waits) is held for the next wait instead of lost.
+    let mut interrupt = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())
+        .context("listening for Ctrl-C")?;
     let session = super::client::open(&args.connect, args.credentials.as_ref()).await?;
     let cell = &args.cell;
     // Subscribe before asking, so that no publication of the scan is missed.
@@ -230,7 +234,7 @@ async fn scan(args: &ScanArgs) -> Result<Arrived> {
     let done = loop {
         let next = tokio::select! {
             next = tokio::time::timeout_at(deadline, sub.recv_async()) => next,
-            _ = tokio::signal::ctrl_c() => {
+            _ = interrupt.recv() => {
                 pb.abandon_with_message("interrupted");
                 bail!(
                     "interrupted: scan {scan_id} goes on in risd; its results stay under ris/{cell}/scans/{scan_id}/ (state, report, cloud/<sensor>)"

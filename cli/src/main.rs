@@ -40,6 +40,10 @@ struct DecodeArgs {
     /// Leave the line fit's curvature bias on curved surfaces (for comparisons only).
     #[arg(long)]
     no_bend_correction: bool,
+    /// Leave the crossing's phase bias (the moiré of the camera's and the projector's pixel
+    /// grids; for comparisons only).
+    #[arg(long)]
+    no_phase_correction: bool,
 }
 
 impl DecodeArgs {
@@ -51,6 +55,7 @@ impl DecodeArgs {
             edge_erosion: self.edge_erosion,
             albedo_weight_power: self.albedo_weight_power,
             bend_correction: !self.no_bend_correction,
+            phase_correction: !self.no_phase_correction,
             ..DecodeParams::default()
         }
     }

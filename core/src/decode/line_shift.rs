@@ -4,6 +4,8 @@ use rayon::prelude::*;
 
 use super::ScanDirection;
 
+mod phase_bias;
+
 use crate::image::Sample;
 use crate::pattern::{binary_to_gray, flipped_bit};
 
@@ -83,6 +85,8 @@ struct Code {
     albedo_power: u32,
     /// The bend's filter for a whole symmetric window, when the bend is corrected.
     bend: Option<BendFilter>,
+    /// The capture's crossing bias, subtracted from every edge, when it is corrected.
+    phase: Option<phase_bias::PhaseBias>,
 }
 
 /// Columns handled together when scanning down columns, so frame reads stay row-major.
@@ -106,7 +110,7 @@ pub(super) fn subpixel<T: Sample>(
     step: u32,
     params: &super::DecodeParams,
 ) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
-    let code = Code {
+    let mut code = Code {
         bits,
         step: step as f32,
         max_jump: params.max_jump,
@@ -117,7 +121,11 @@ pub(super) fn subpixel<T: Sample>(
         bend: params
             .bend_correction
             .then(|| BendFilter::new(wide_window(params.edge_window.max(1)))),
+        phase: None,
     };
+    if params.phase_correction {
+        code.phase = phase_bias(w, h, codes, signal, dir, &code);
+    }
     let mut coord = vec![f32::NAN; w * h];
     let mut quality = vec![0f32; w * h];
     let mut bend = vec![0f32; w * h];
@@ -128,28 +136,32 @@ pub(super) fn subpixel<T: Sample>(
                 .zip(quality.par_chunks_mut(w))
                 .zip(bend.par_chunks_mut(w))
                 .enumerate()
-                .for_each_init(Vec::new, |edges, (y, ((out, q), bent))| {
-                    let line = Line {
-                        start: y * w,
-                        stride: 1,
-                        len: w,
-                    };
-                    edges.clear();
-                    let mut chain = ChainState::default();
-                    for n in 0..w.saturating_sub(1) {
-                        gap_edges(
-                            y * w + n,
-                            y * w + n + 1,
-                            n,
-                            codes,
-                            signal,
-                            &code,
-                            &mut chain,
-                            edges,
-                        );
-                    }
-                    fit_runs(line, codes, &code, edges, out, q, bent);
-                });
+                .for_each_init(
+                    || (Vec::new(), Vec::new()),
+                    |(edges, scratch), (y, ((out, q), bent))| {
+                        let line = Line {
+                            start: y * w,
+                            stride: 1,
+                            len: w,
+                        };
+                        edges.clear();
+                        let mut chain = ChainState::default();
+                        for n in 0..w.saturating_sub(1) {
+                            gap_edges(
+                                y * w + n,
+                                y * w + n + 1,
+                                n,
+                                codes,
+                                signal,
+                                &code,
+                                &mut chain,
+                                edges,
+                            );
+                        }
+                        correct_phase(edges, &code, scratch);
+                        fit_runs(line, codes, &code, edges, out, q, bent);
+                    },
+                );
         }
         ScanDirection::AlongColumns => {
             // Phase 2 reads each column's codes contiguously from a transposed copy.
@@ -160,8 +172,14 @@ pub(super) fn subpixel<T: Sample>(
                 .zip(bend.par_chunks_mut(BLOCK * h))
                 .enumerate()
                 .for_each_init(
-                    || (vec![Vec::new(); BLOCK], vec![ChainState::default(); BLOCK]),
-                    |(edges, chains), (b, ((out, q), bent))| {
+                    || {
+                        (
+                            vec![Vec::new(); BLOCK],
+                            vec![ChainState::default(); BLOCK],
+                            Vec::new(),
+                        )
+                    },
+                    |(edges, chains, scratch), (b, ((out, q), bent))| {
                         let x0 = b * BLOCK;
                         let bw = out.len() / h;
                         for x in 0..bw {
@@ -186,6 +204,7 @@ pub(super) fn subpixel<T: Sample>(
                         }
                         // Phase 2, per column: runs and line fits into this column's output row.
                         for x in 0..bw {
+                            correct_phase(&mut edges[x], &code, scratch);
                             let line = Line {
                                 start: (x0 + x) * h,
                                 stride: 1,
@@ -206,6 +225,68 @@ pub(super) fn subpixel<T: Sample>(
         }
     }
     (coord, quality, bend)
+}
+
+/// Lines of the capture sampled to measure its crossing bias: about this many, evenly spread
+/// (an 800x600 capture's every fourth row; some 100 000 edges).
+const PHASE_LINES: usize = 80;
+
+/// The crossing bias of this capture along `dir` (see [`phase_bias`]), measured on
+/// [`PHASE_LINES`] lines; `None` where too few edges were found to measure it.
+fn phase_bias<T: Sample>(
+    w: usize,
+    h: usize,
+    codes: &[i32],
+    signal: &Signal<'_, T>,
+    dir: ScanDirection,
+    code: &Code,
+) -> Option<phase_bias::PhaseBias> {
+    let (lines, len, along, across) = match dir {
+        ScanDirection::AlongRows => (h, w, 1, w),
+        ScanDirection::AlongColumns => (w, h, w, 1),
+    };
+    let every = (lines / PHASE_LINES).max(1);
+    let sample: Vec<Vec<Edge>> = (every / 2..lines)
+        .into_par_iter()
+        .step_by(every)
+        .map(|line| {
+            let mut edges = Vec::new();
+            let mut chain = ChainState::default();
+            let start = line * across;
+            for n in 0..len.saturating_sub(1) {
+                let i0 = start + n * along;
+                gap_edges(
+                    i0,
+                    i0 + along,
+                    n,
+                    codes,
+                    signal,
+                    code,
+                    &mut chain,
+                    &mut edges,
+                );
+            }
+            edges
+        })
+        .collect();
+    let bias = phase_bias::measure(&sample, code.window);
+    match &bias {
+        Some(b) => tracing::debug!(
+            direction = ?dir,
+            amplitude = b.amplitude(),
+            coefficients = ?b.coefficients(),
+            "crossing bias measured"
+        ),
+        None => tracing::debug!(direction = ?dir, "crossing bias not measured"),
+    }
+    bias
+}
+
+/// Subtract the capture's crossing bias (if measured) from one line's edges.
+fn correct_phase(edges: &mut [Edge], code: &Code, scratch: &mut Vec<f64>) {
+    if let Some(bias) = &code.phase {
+        bias.correct(edges, code.window, scratch);
+    }
 }
 
 /// Chain bookkeeping of one line while its gaps are visited in order.

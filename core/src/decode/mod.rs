@@ -63,6 +63,10 @@ pub struct DecodeParams {
     /// beyond the line's window; see `line_shift::add_bend`). Off, a sphere's surface reads
     /// about 0.1 mm inside at the default window.
     pub bend_correction: bool,
+    /// Remove the crossing's phase bias (measured on each capture; see
+    /// `line_shift::phase_bias`): off, the coordinates carry a moiré of the camera's and the
+    /// projector's pixel grids of 0.01–0.02 projector pixels.
+    pub phase_correction: bool,
 }
 
 impl Default for DecodeParams {
@@ -79,6 +83,7 @@ impl Default for DecodeParams {
             cross_smoothing: true,
             albedo_weight_power: 4,
             bend_correction: true,
+            phase_correction: true,
         }
     }
 }

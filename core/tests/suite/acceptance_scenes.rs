@@ -180,7 +180,11 @@ fn an_acceptance_set_rendered_through_the_sensor_passes_and_each_fault_fails_its
         .into_iter()
         .filter(|p| common::long_tier() || keep.contains(&p.label.as_str()))
         .collect();
-    let models = [Model::True, Model::Baseline(0.01), Model::CameraTurned(0.1)];
+    let models = [
+        Model::True,
+        Model::Baseline(0.015),
+        Model::CameraTurned(0.1),
+    ];
     let (clouds, reference) = measure(&base, &set, &models);
 
     // The true sensor model: every figure measured and within its limit.
@@ -200,12 +204,14 @@ fn an_acceptance_set_rendered_through_the_sensor_passes_and_each_fault_fails_its
         );
     }
 
-    // A baseline 1 % long: the parallax model scales the heights above the reference plane
-    // and, through them, positions along the baseline. Every sphere reads 0.15–0.3 mm larger
+    // A baseline 1.5 % long: the parallax model scales the heights above the reference plane
+    // and, through them, positions along the baseline. Every sphere reads about 0.3 mm larger
     // than with the true model (PS fails on most of them at a 0.2 mm MPE; PF does not: they
-    // stay round), the bar along the baseline (x) 0.2 mm long.
+    // stay round), the bar along the baseline (x) 0.3 mm long. (A 1 % error moves PS by
+    // 0.21 mm: at this MPE, against a sphere's own PS scatter of a few hundredths, that is
+    // the edge of what one sphere can tell.)
     let scaled = certificate(&set, &clouds[1]);
-    show("baseline +1 %", &scaled);
+    show("baseline +1.5 %", &scaled);
     let ps = |cert: &Certificate, name: &str| {
         cert.probing_size
             .iter()
@@ -215,7 +221,7 @@ fn an_acceptance_set_rendered_through_the_sensor_passes_and_each_fault_fails_its
     };
     for f in &scaled.probing_size {
         let grown = ps(&scaled, &f.cloud) - ps(&truth, &f.cloud);
-        assert!(grown > 0.1, "{}: PS grew by {grown:.3} mm only", f.cloud);
+        assert!(grown > 0.2, "{}: PS grew by {grown:.3} mm only", f.cloud);
     }
     let failed = scaled
         .probing_size
@@ -239,7 +245,7 @@ fn an_acceptance_set_rendered_through_the_sensor_passes_and_each_fault_fails_its
     };
     if set.iter().any(|p| p.label == "bar-5") {
         assert!(
-            sd(&scaled, "bar-5.ply") - sd(&truth, "bar-5.ply") > 0.15,
+            sd(&scaled, "bar-5.ply") - sd(&truth, "bar-5.ply") > 0.2,
             "the bar along the baseline lengthens"
         );
     }

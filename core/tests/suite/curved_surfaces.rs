@@ -7,13 +7,14 @@
 //! Each family is decoded twice, with and without the bend correction, so the test also shows
 //! that it measures the bias it guards against.
 //!
-//! The per-sphere size error scatters by about 0.05 mm (one standard deviation) on this
-//! 800x600 sensor: its decoding error (0.01–0.02 projector pixels, mostly the moiré of the
-//! projector's and the camera's pixel grids) is correlated over patches of tens of pixels, and
-//! a 20 mm sphere holds a few hundred; where the pitches beat (the right fifth of the image) the
-//! decoding is also biased by about 0.015 projector pixels (0.05 mm of depth) on flats and
-//! curves alike. The curvature bias is what the correction removes, so the family's mean is
-//! held tight and each shape only within that scatter.
+//! With the crossing's phase bias removed (see `crossing_bias.rs`) the table's height error
+//! is 0.019 mm (SD; 0.057 mm with the moiré of the pixel grids left in), and most spheres' PS
+//! lies within a few hundredths of a millimetre. The smallest spheres (about 22 mm, some 25
+//! pixels across on this 800x600 sensor) are the exception: their radial error varies with the
+//! angle from the view by a few hundredths (top high, flanks low; with one edge a side too, so
+//! not the line fit, and not the smoothing across lines), and a free sphere fit to a cap of
+//! 65 degrees multiplies that into PS of −0.1 to −0.2 mm. The family's median and mean are
+//! held tight, and each shape only within that scatter.
 
 use crate::common;
 
@@ -228,10 +229,17 @@ fn spheres_of_20_to_60_mm_are_measured_without_bias_and_flats_keep_their_noise()
         "a sphere's radial bias {:.4} mm",
         worst(&bias)
     );
-    // PS scatters by about 0.05 mm per sphere here (see above): the mean of 12 within three
-    // of its standard errors, each sphere within four standard deviations.
-    assert!(mean(&ps).abs() <= 0.045, "PS mean {:+.4} mm", mean(&ps));
-    assert!(worst(&ps) <= 0.2, "a sphere's PS {:.4} mm", worst(&ps));
+    // PS: most spheres within a few hundredths, the smallest ones off (see above).
+    let mut sizes: Vec<f64> = ps.iter().map(|p| p.abs()).collect();
+    sizes.sort_by(f64::total_cmp);
+    let median = 0.5 * (sizes[sizes.len() / 2 - 1] + sizes[sizes.len() / 2]);
+    assert!(median <= 0.035, "the median |PS| {median:.4} mm");
+    assert!(mean(&ps).abs() <= 0.035, "PS mean {:+.4} mm", mean(&ps));
+    assert!(worst(&ps) <= 0.25, "a sphere's PS {:.4} mm", worst(&ps));
+    // The table: the pixel grids' moiré is gone from the decoding (it read 0.057 mm).
+    for sd in &flat_sd {
+        assert!(*sd <= 0.03, "the table's SD {sd:.4} mm");
+    }
     // Flats: the correction stays off them (SD within 2 % of the straight line's).
     for (on, off) in flat_sd.iter().zip(&flat_sd_off) {
         assert!(

@@ -11,6 +11,7 @@ mod camera_calibration;
 mod cell_calibration;
 mod coarse_alignment;
 mod conditioning;
+mod crossing_bias;
 mod curved_surfaces;
 mod datum_frame;
 mod decode_exact;

@@ -23,6 +23,14 @@ fn bench(c: &mut Criterion) {
     g.bench_function("2048x2048_42_frames_without_bend_correction", |b| {
         b.iter(|| decode(&capture, &straight).expect("decode"))
     });
+    // The same without the crossing's phase bias measured and removed, for its cost.
+    let locked = DecodeParams {
+        phase_correction: false,
+        ..params
+    };
+    g.bench_function("2048x2048_42_frames_without_phase_correction", |b| {
+        b.iter(|| decode(&capture, &locked).expect("decode"))
+    });
     g.finish();
 }
 

@@ -42,6 +42,29 @@ fn main() {
         };
         let d = decode(&capture, &params).expect("decode");
         let rows = d.row.as_ref().expect("rows");
+        if phase {
+            // Where the largest errors lie (the image's border, one-sided windows).
+            let mut worst: Vec<(f64, usize, usize)> = Vec::new();
+            for y in 0..h {
+                for x in 0..w {
+                    let i = y * w + x;
+                    let p = truth.xyz[i];
+                    if !p[0].is_finite() || !d.col[i].is_finite() || truth.lit[i] < 0.999 {
+                        continue;
+                    }
+                    let p = Vec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+                    let Some((u, v)) = scene.projector.project(&p) else {
+                        continue;
+                    };
+                    let e = (d.col[i] as f64 - u).abs().max((rows[i] as f64 - v).abs());
+                    worst.push((e, x, y));
+                }
+            }
+            worst.sort_by(|a, b| b.0.total_cmp(&a.0));
+            for (e, x, y) in worst.iter().take(12) {
+                println!("  outlier {e:.4} px at ({x}, {y})");
+            }
+        }
         let (mut bands_c, mut bands_r) =
             (vec![(0.0, 0.0, 0usize); 16], vec![(0.0, 0.0, 0usize); 16]);
         let (mut all_c, mut all_r) = (Vec::new(), Vec::new());
@@ -106,6 +129,12 @@ fn main() {
             let sd = (v.iter().map(|e| (e - m) * (e - m)).sum::<f64>() / v.len() as f64).sqrt();
             (m, sd)
         };
+        let tail = |v: &[f64]| {
+            let worst = v.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+            let beyond = v.iter().filter(|e| e.abs() > 0.03).count();
+            format!("worst {worst:.4} px, {beyond} beyond 0.03 px")
+        };
+        println!("  tails: columns {}; rows {}", tail(&all_c), tail(&all_r));
         let (mc, sc) = stats(&all_c);
         let (mr, sr) = stats(&all_r);
         println!(

@@ -137,7 +137,7 @@ pub(super) fn subpixel<T: Sample>(
                 .zip(bend.par_chunks_mut(w))
                 .enumerate()
                 .for_each_init(
-                    || (Vec::new(), Vec::new()),
+                    || (Vec::new(), phase_bias::Scratch::default()),
                     |(edges, scratch), (y, ((out, q), bent))| {
                         let line = Line {
                             start: y * w,
@@ -176,7 +176,7 @@ pub(super) fn subpixel<T: Sample>(
                         (
                             vec![Vec::new(); BLOCK],
                             vec![ChainState::default(); BLOCK],
-                            Vec::new(),
+                            phase_bias::Scratch::default(),
                         )
                     },
                     |(edges, chains, scratch), (b, ((out, q), bent))| {
@@ -228,8 +228,8 @@ pub(super) fn subpixel<T: Sample>(
 }
 
 /// Lines of the capture sampled to measure its crossing bias: about this many, evenly spread
-/// (an 800x600 capture's every fourth row; some 100 000 edges).
-const PHASE_LINES: usize = 80;
+/// (an 800x600 capture's every fifteenth row; some 30 000 edges).
+const PHASE_LINES: usize = 40;
 
 /// The crossing bias of this capture along `dir` (see [`phase_bias`]), measured on
 /// [`PHASE_LINES`] lines; `None` where too few edges were found to measure it.
@@ -283,7 +283,7 @@ fn phase_bias<T: Sample>(
 }
 
 /// Subtract the capture's crossing bias (if measured) from one line's edges.
-fn correct_phase(edges: &mut [Edge], code: &Code, scratch: &mut Vec<f64>) {
+fn correct_phase(edges: &mut [Edge], code: &Code, scratch: &mut phase_bias::Scratch) {
     if let Some(bias) = &code.phase {
         bias.correct(edges, code.window, scratch);
     }

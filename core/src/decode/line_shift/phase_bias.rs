@@ -56,7 +56,7 @@ const OUTLIER: f64 = 0.5;
 /// Edges whose reliability (see `Edge::weight`) is below this sit beside albedo edges.
 const MIN_WEIGHT: f32 = 0.5;
 
-/// Edges needed to trust the fit (an 800x600 capture's sample holds some 50 000).
+/// Edges needed to trust the fit (an 800x600 capture's sample holds some 30 000).
 const MIN_ROWS: usize = 2000;
 
 /// A bias beyond this (camera pixels) is not a crossing's; the capture is left uncorrected.
@@ -199,12 +199,32 @@ impl PhaseBias {
     /// Subtract the bias from one line's edges: each edge's true phase and magnification are
     /// read off the straight line through its window (up to `window` edges of its chain on
     /// either side) once the window's edges are corrected at their own phases, as in the fit.
-    /// `scratch` holds those corrected positions.
-    pub(super) fn correct(&self, edges: &mut [Edge], window: usize, scratch: &mut Vec<f64>) {
-        self.first_guess(edges, window, scratch);
-        let runs: Vec<(usize, usize)> = chains(edges).collect();
-        for (start, end) in runs {
-            for i in start..end {
+    /// The lines come from running sums along each chain, so each costs the same whatever
+    /// the window.
+    pub(super) fn correct(&self, edges: &mut [Edge], window: usize, scratch: &mut Scratch) {
+        self.first_guess(edges, window, &mut scratch.guess);
+        let guess = &scratch.guess;
+        let sums = &mut scratch.sums;
+        let mut start = 0;
+        while start < edges.len() {
+            let chain = edges[start].chain;
+            let end = start
+                + edges[start..]
+                    .iter()
+                    .take_while(|e| e.chain == chain)
+                    .count();
+            // Σ du, Σ du², Σ dy, Σ du·dy from the run's first edge (small numbers, no
+            // cancellation).
+            let (u0, y0) = (f64::from(edges[start].boundary), guess[start]);
+            sums.clear();
+            sums.push([0.0; 4]);
+            let mut s = [0.0; 4];
+            for (e, g) in edges[start..end].iter().zip(&guess[start..end]) {
+                let (du, dy) = (f64::from(e.boundary) - u0, g - y0);
+                s = [s[0] + du, s[1] + du * du, s[2] + dy, s[3] + du * dy];
+                sums.push(s);
+            }
+            for (i, e) in edges.iter_mut().enumerate().take(end).skip(start) {
                 let (lo, hi) = (
                     i.saturating_sub(window).max(start),
                     (i + window).min(end - 1),
@@ -212,15 +232,20 @@ impl PhaseBias {
                 if hi - lo < 2 {
                     continue;
                 }
-                let points = (lo..=hi).map(|k| (f64::from(edges[k].boundary), scratch[k]));
-                let Some(line) = Line::fit(points) else {
+                let (a, b) = (sums[lo - start], sums[hi + 1 - start]);
+                let n = (hi - lo + 1) as f64;
+                let (su, suu, sy, suy) = (b[0] - a[0], b[1] - a[1], b[2] - a[2], b[3] - a[3]);
+                let var = suu - su * su / n;
+                if var <= 0.0 {
                     continue;
-                };
-                let e = &mut edges[i];
-                let u = f64::from(e.boundary);
-                let bias = self.at(class(e.boundary), line.at(u), line.b);
+                }
+                let slope = (suy - su * sy / n) / var;
+                let du = f64::from(e.boundary) - u0 - su / n;
+                let at = y0 + sy / n + slope * du;
+                let bias = self.at(class(e.boundary), at, slope);
                 e.x = (f64::from(e.x) - bias) as f32;
             }
+            start = end;
         }
     }
 
@@ -229,7 +254,14 @@ impl PhaseBias {
     fn first_guess(&self, edges: &[Edge], window: usize, out: &mut Vec<f64>) {
         out.clear();
         out.extend(edges.iter().map(|e| f64::from(e.x)));
-        for (start, end) in chains(edges) {
+        let mut start = 0;
+        while start < edges.len() {
+            let chain = edges[start].chain;
+            let end = start
+                + edges[start..]
+                    .iter()
+                    .take_while(|e| e.chain == chain)
+                    .count();
             for i in start..end {
                 let (lo, hi) = (
                     i.saturating_sub(window).max(start),
@@ -243,27 +275,16 @@ impl PhaseBias {
                 let magnification = f64::from(last.x - first.x) / span;
                 out[i] -= self.at(class(edges[i].boundary), out[i], magnification);
             }
+            start = end;
         }
     }
 }
 
-/// The runs of one chain in a line's edges, as index ranges.
-fn chains(edges: &[Edge]) -> impl Iterator<Item = (usize, usize)> + '_ {
-    let mut start = 0;
-    std::iter::from_fn(move || {
-        if start >= edges.len() {
-            return None;
-        }
-        let chain = edges[start].chain;
-        let end = start
-            + edges[start..]
-                .iter()
-                .take_while(|e| e.chain == chain)
-                .count();
-        let run = (start, end);
-        start = end;
-        Some(run)
-    })
+/// Working memory of [`PhaseBias::correct`], kept across lines.
+#[derive(Debug, Default)]
+pub(super) struct Scratch {
+    guess: Vec<f64>,
+    sums: Vec<[f64; 4]>,
 }
 
 /// The crossing bias measured from sampled lines' edges (each line's edges in order), with
@@ -561,7 +582,7 @@ mod tests {
         }
         // Corrected, every edge is back on its line, to a tenth of the bias at a chain's
         // ends (where its window is one-sided) and a twentieth inside.
-        let mut scratch = Vec::new();
+        let mut scratch = Scratch::default();
         for (mut line, slope) in lines.into_iter().zip(slopes()) {
             measured.correct(&mut line, 3, &mut scratch);
             for (i, e) in line.iter().enumerate() {

@@ -10,11 +10,12 @@
 //! With the crossing's phase bias removed (see `crossing_bias.rs`) the table's height error
 //! is 0.019 mm (SD; 0.057 mm with the moiré of the pixel grids left in), and most spheres' PS
 //! lies within a few hundredths of a millimetre. The smallest spheres (about 22 mm, some 25
-//! pixels across on this 800x600 sensor) are the exception: their radial error varies with the
-//! angle from the view by a few hundredths (top high, flanks low; with one edge a side too, so
-//! not the line fit, and not the smoothing across lines), and a free sphere fit to a cap of
-//! 65 degrees multiplies that into PS of −0.1 to −0.2 mm. The family's median and mean are
-//! held tight, and each shape only within that scatter.
+//! pixels across on this 800x600 sensor) are the exception: a free sphere fit to the ~340
+//! points of their cap (65 degrees from the view at most) multiplies a radial error that varies
+//! by a hundredth from top to flank into PS of a tenth. Without any noise (`cargo run --profile
+//! ci -p ris-core --example sphere_ps` with `NOISELESS=1`) a 21.9 mm sphere reads PS −0.095,
+//! +0.062 and −0.031 mm at three places of the view, a 40 mm one −0.014 mm. The family's
+//! median and mean are held tight, and each shape only within that scatter.
 
 use crate::common;
 

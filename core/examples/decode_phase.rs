@@ -1,20 +1,40 @@
 //! Decoding error against the simulator's truth on the demo sensor's flat table (uniform
-//! albedo, or the demo's texture with TEXTURE=1), by image column band: shows the moiré of
-//! the camera's and projector's pixel grids in the sub-pixel crossing.
+//! albedo, or the demo's texture with TEXTURE=1; at height Z mm; NOISELESS=1 without read and
+//! shot noise), with and without the crossing's phase bias removed: the error's SD, its
+//! correlated part (8x8-pixel block means), its mean by image band (the moiré of the camera's
+//! and projector's pixel grids shows where their pitches beat), its tail and where the largest
+//! errors lie.
+#[path = "../tests/common/mod.rs"]
+mod common;
+
 use std::path::Path;
 
 use ris_core::decode::{decode, DecodeParams};
 use ris_core::geometry::Vec3;
 use ris_core::sim::{Scene, SceneFile, Simulator};
 
+/// One decoded pixel: its position and its column and row errors (projector px; the row's NaN
+/// where it has none).
+struct Pixel {
+    x: usize,
+    y: usize,
+    col: f64,
+    row: f64,
+}
+
+fn moments(v: impl Iterator<Item = f64> + Clone) -> (f64, f64) {
+    let n = v.clone().count().max(1) as f64;
+    let mean = v.clone().sum::<f64>() / n;
+    (
+        mean,
+        (v.map(|e| (e - mean).powi(2)).sum::<f64>() / n).sqrt(),
+    )
+}
+
 fn main() {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenes/demo.toml");
-    let demo = std::fs::read_to_string(&path).expect("demo scene");
-    let mut optics = demo[..demo.find("[[object]]").expect("objects")].to_string();
+    let mut optics = common::demo_optics();
     if std::env::var("NOISELESS").is_ok() {
-        optics = optics
-            .replace("noise = 1.5", "noise = 0.0")
-            .replace("shot_noise = 0.05", "shot_noise = 0.0");
+        optics = common::noiseless(&optics);
     }
     let material = if std::env::var("TEXTURE").is_ok() {
         "table"
@@ -42,112 +62,87 @@ fn main() {
         };
         let d = decode(&capture, &params).expect("decode");
         let rows = d.row.as_ref().expect("rows");
-        if phase {
-            // Where the largest errors lie (the image's border, one-sided windows).
-            let mut worst: Vec<(f64, usize, usize)> = Vec::new();
-            for y in 0..h {
-                for x in 0..w {
-                    let i = y * w + x;
-                    let p = truth.xyz[i];
-                    if !p[0].is_finite() || !d.col[i].is_finite() || truth.lit[i] < 0.999 {
-                        continue;
-                    }
-                    let p = Vec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
-                    let Some((u, v)) = scene.projector.project(&p) else {
-                        continue;
-                    };
-                    let e = (d.col[i] as f64 - u).abs().max((rows[i] as f64 - v).abs());
-                    worst.push((e, x, y));
-                }
-            }
-            worst.sort_by(|a, b| b.0.total_cmp(&a.0));
-            for (e, x, y) in worst.iter().take(12) {
-                println!("  outlier {e:.4} px at ({x}, {y})");
-            }
-        }
-        let (mut bands_c, mut bands_r) =
-            (vec![(0.0, 0.0, 0usize); 16], vec![(0.0, 0.0, 0usize); 16]);
-        let (mut all_c, mut all_r) = (Vec::new(), Vec::new());
-        for y in 0..h {
-            for x in 0..w {
-                let i = y * w + x;
+        let pixels: Vec<Pixel> = (0..w * h)
+            .filter_map(|i| {
                 let p = truth.xyz[i];
                 if !p[0].is_finite() || !d.col[i].is_finite() || truth.lit[i] < 0.999 {
-                    continue;
+                    return None;
                 }
-                let p = Vec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
-                let Some((u, v)) = scene.projector.project(&p) else {
-                    continue;
-                };
-                let ec = d.col[i] as f64 - u;
-                let b = &mut bands_c[x * 16 / w];
-                b.0 += ec;
-                b.1 += ec * ec;
-                b.2 += 1;
-                all_c.push(ec);
-                if rows[i].is_finite() {
-                    let er = rows[i] as f64 - v;
-                    let b = &mut bands_r[y * 16 / h];
-                    b.0 += er;
-                    b.1 += er * er;
-                    b.2 += 1;
-                    all_r.push(er);
-                }
-            }
-        }
-        // Correlated error: SD of the mean over 8x8 blocks (white noise: the pixel SD / 8).
-        let mut blocks = std::collections::HashMap::<(usize, usize), (f64, usize)>::new();
-        for y in 0..h {
-            for x in 0..w {
-                let i = y * w + x;
-                let p = truth.xyz[i];
-                if !p[0].is_finite() || !d.col[i].is_finite() || truth.lit[i] < 0.999 {
-                    continue;
-                }
-                let p = Vec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
-                let Some((u, _)) = scene.projector.project(&p) else {
-                    continue;
-                };
-                let e = blocks.entry((x / 8, y / 8)).or_default();
-                e.0 += d.col[i] as f64 - u;
-                e.1 += 1;
-            }
-        }
-        let means: Vec<f64> = blocks
-            .values()
-            .filter(|(_, n)| *n == 64)
-            .map(|(s, n)| s / *n as f64)
+                let p = Vec3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+                let (u, v) = scene.projector.project(&p)?;
+                Some(Pixel {
+                    x: i % w,
+                    y: i / w,
+                    col: f64::from(d.col[i]) - u,
+                    row: f64::from(rows[i]) - v,
+                })
+            })
             .collect();
-        let bm = means.iter().sum::<f64>() / means.len() as f64;
-        let bsd = (means.iter().map(|m| (m - bm).powi(2)).sum::<f64>() / means.len() as f64).sqrt();
-        println!(
-            "  8x8 block means of the column error: SD {bsd:.4} px over {} blocks",
-            means.len()
-        );
-        let stats = |v: &[f64]| {
-            let m = v.iter().sum::<f64>() / v.len() as f64;
-            let sd = (v.iter().map(|e| (e - m) * (e - m)).sum::<f64>() / v.len() as f64).sqrt();
-            (m, sd)
-        };
-        let tail = |v: &[f64]| {
-            let worst = v.iter().fold(0.0f64, |a, b| a.max(b.abs()));
-            let beyond = v.iter().filter(|e| e.abs() > 0.03).count();
-            format!("worst {worst:.4} px, {beyond} beyond 0.03 px")
-        };
-        println!("  tails: columns {}; rows {}", tail(&all_c), tail(&all_r));
-        let (mc, sc) = stats(&all_c);
-        let (mr, sr) = stats(&all_r);
+        let cols = pixels.iter().map(|p| p.col);
+        let rws = pixels.iter().map(|p| p.row).filter(|e| e.is_finite());
+        let ((mc, sc), (mr, sr)) = (moments(cols.clone()), moments(rws.clone()));
         println!(
             "phase correction {phase}: columns mean {mc:+.4} SD {sc:.4} px ({} px); rows mean {mr:+.4} SD {sr:.4}",
-            all_c.len()
+            pixels.len()
         );
-        let line = |b: &[(f64, f64, usize)]| {
+        // Correlated error: SD of the mean over whole 8x8 blocks (white noise: the pixel SD / 8).
+        let bw = w.div_ceil(8);
+        let mut blocks = vec![(0.0, 0usize); bw * h.div_ceil(8)];
+        let (mut bands_c, mut bands_r) = (vec![(0.0, 0usize); 16], vec![(0.0, 0usize); 16]);
+        for p in &pixels {
+            let b = &mut blocks[(p.y / 8) * bw + p.x / 8];
+            b.0 += p.col;
+            b.1 += 1;
+            let b = &mut bands_c[p.x * 16 / w];
+            b.0 += p.col;
+            b.1 += 1;
+            if p.row.is_finite() {
+                let b = &mut bands_r[p.y * 16 / h];
+                b.0 += p.row;
+                b.1 += 1;
+            }
+        }
+        let means = blocks
+            .iter()
+            .filter(|(_, n)| *n == 64)
+            .map(|(s, n)| s / *n as f64);
+        println!(
+            "  8x8 block means of the column error: SD {:.4} px over {} blocks",
+            moments(means.clone()).1,
+            means.count()
+        );
+        let line = |b: &[(f64, usize)]| {
             b.iter()
-                .map(|(s, _, n)| format!("{:+.4}", s / (*n).max(1) as f64))
+                .map(|(s, n)| format!("{:+.4}", s / (*n).max(1) as f64))
                 .collect::<Vec<_>>()
                 .join(" ")
         };
         println!("  column error by column band: {}", line(&bands_c));
         println!("  row error by row band:       {}", line(&bands_r));
+        let tail = |v: &mut dyn Iterator<Item = f64>| {
+            let (mut worst, mut beyond) = (0.0f64, 0usize);
+            for e in v {
+                worst = worst.max(e.abs());
+                beyond += usize::from(e.abs() > 0.03);
+            }
+            format!("worst {worst:.4} px, {beyond} beyond 0.03 px")
+        };
+        println!(
+            "  tails: columns {}; rows {}",
+            tail(&mut cols.clone()),
+            tail(&mut rws.clone())
+        );
+        if phase {
+            // Where the largest errors lie (the image's border, one-sided windows).
+            let mut worst: Vec<(f64, usize, usize)> = pixels
+                .iter()
+                .map(|p| (p.col.abs().max(p.row.abs()), p.x, p.y))
+                .filter(|(e, _, _)| e.is_finite())
+                .collect();
+            worst.sort_by(|a, b| b.0.total_cmp(&a.0));
+            for (e, x, y) in worst.iter().take(12) {
+                println!("  outlier {e:.4} px at ({x}, {y})");
+            }
+        }
     }
 }

@@ -3,6 +3,9 @@
 //! projector, with the default decoding, without the bend correction and with one edge a side
 //! (diagnostic for issue 41: a free sphere fit to a small cap multiplies a structured radial
 //! error of a hundredth into PS of a tenth).
+#[path = "../tests/common/mod.rs"]
+mod common;
+
 use std::path::Path;
 
 use ris_core::decode::{decode, DecodeParams};
@@ -19,13 +22,9 @@ fn arg(name: &str, default: f64) -> f64 {
 }
 
 fn main() {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenes/demo.toml");
-    let demo = std::fs::read_to_string(&path).expect("demo scene");
-    let mut optics = demo[..demo.find("[[object]]").expect("objects")].to_string();
+    let mut optics = common::demo_optics();
     if std::env::var("NOISELESS").is_ok() {
-        optics = optics
-            .replace("noise = 1.5", "noise = 0.0")
-            .replace("shot_noise = 0.05", "shot_noise = 0.0");
+        optics = common::noiseless(&optics);
     }
     let (x, y, z, r) = (
         arg("X", -209.0),

@@ -30,6 +30,23 @@ pub fn long_tier() -> bool {
     std::env::var("RIS_TIER").is_ok_and(|v| v == "long")
 }
 
+/// The demo scene's file up to its first object: the demo sensor's camera and projector (1600 mm
+/// standoff, 500 mm baseline, 800x600 camera at about 0.9 mm/px) and its materials (`table`
+/// textured), for scenes that place their own objects.
+pub fn demo_optics() -> String {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenes/demo.toml");
+    let demo = std::fs::read_to_string(&path).expect("demo scene");
+    demo[..demo.find("[[object]]").expect("objects")].to_string()
+}
+
+/// `optics` (from [`demo_optics`]) without read or shot noise.
+pub fn noiseless(optics: &str) -> String {
+    assert!(optics.contains("noise = 1.5") && optics.contains("shot_noise = 0.05"));
+    optics
+        .replace("shot_noise = 0.05", "shot_noise = 0.0")
+        .replace("noise = 1.5", "noise = 0.0")
+}
+
 /// Seeds `0..default` of a family, or `0..long` in the long tier.
 pub fn seeds(default: u64, long: u64) -> std::ops::Range<u64> {
     0..if long_tier() { long } else { default }

@@ -28,9 +28,7 @@ use ris_core::verify::{
 
 /// The demo sensor and its textured table.
 fn sensor_scene() -> Scene {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenes/demo.toml");
-    let demo = std::fs::read_to_string(&path).expect("demo scene");
-    let optics = &demo[..demo.find("[[object]]").expect("objects")];
+    let optics = common::demo_optics();
     let text = format!("{optics}\n[[object]]\nshape = \"plane\"\nmaterial = \"table\"\n");
     let file: SceneFile = toml::from_str(&text).expect("scene");
     Scene::from_file(file, Path::new("."), "demo sensor").expect("scene")

@@ -24,10 +24,7 @@ use ris_core::sim::{Scene, SceneFile, Simulator};
 /// (mm) whose normal is tilted by `tilt` (degrees about x and y): the cap of a sphere of 50 m
 /// radius, flat to 1.3 µm over the view, and traced exactly.
 fn flat(blur: f64, material: &str, z: f64, tilt: [f64; 2]) -> Scene {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenes/demo.toml");
-    let demo = std::fs::read_to_string(&path).expect("demo scene");
-    let optics = demo[..demo.find("[[object]]").expect("objects")]
-        .replace("blur = 0.6", &format!("blur = {blur}"));
+    let optics = common::demo_optics().replace("blur = 0.6", &format!("blur = {blur}"));
     assert!(optics.contains(&format!("blur = {blur}")));
     let (a, b) = (tilt[0].to_radians(), tilt[1].to_radians());
     let normal = Vec3::new(b.sin() * a.cos(), -a.sin(), a.cos() * b.cos()).normalize();

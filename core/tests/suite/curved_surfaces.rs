@@ -33,9 +33,7 @@ use ris_core::verify::fit::fit_sphere;
 /// The demo sensor (1600 mm standoff, 500 mm baseline, 800x600 camera at about 0.9 mm/px),
 /// its textured table, a uniform matte material `ball` (as artefacts are) and `objects`.
 fn scene(objects: &str) -> Scene {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenes/demo.toml");
-    let demo = std::fs::read_to_string(&path).expect("demo scene");
-    let optics = &demo[..demo.find("[[object]]").expect("objects")];
+    let optics = common::demo_optics();
     let text = format!(
         "{optics}\n[material.ball]\nalbedo = 0.6\n\n\
          [[object]]\nshape = \"plane\"\nmaterial = \"table\"\n{objects}"

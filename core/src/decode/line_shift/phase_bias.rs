@@ -25,7 +25,7 @@
 
 use rayon::prelude::*;
 
-use super::Edge;
+use super::{widen_down, widen_up, Edge};
 use crate::pattern::flipped_bit;
 
 /// Kinds of edge: on the finest stripes, on the next, and on coarser ones (isolated steps).
@@ -207,12 +207,7 @@ impl PhaseBias {
         let sums = &mut scratch.sums;
         let mut start = 0;
         while start < edges.len() {
-            let chain = edges[start].chain;
-            let end = start
-                + edges[start..]
-                    .iter()
-                    .take_while(|e| e.chain == chain)
-                    .count();
+            let end = widen_up(edges, start, edges.len()) + 1;
             // Σ du, Σ du², Σ dy, Σ du·dy from the run's first edge (small numbers, no
             // cancellation).
             let (u0, y0) = (f64::from(edges[start].boundary), guess[start]);
@@ -224,11 +219,8 @@ impl PhaseBias {
                 s = [s[0] + du, s[1] + du * du, s[2] + dy, s[3] + du * dy];
                 sums.push(s);
             }
-            for (i, e) in edges.iter_mut().enumerate().take(end).skip(start) {
-                let (lo, hi) = (
-                    i.saturating_sub(window).max(start),
-                    (i + window).min(end - 1),
-                );
+            for i in start..end {
+                let (lo, hi) = (widen_down(edges, i, window), widen_up(edges, i, window));
                 if hi - lo < 2 {
                     continue;
                 }
@@ -240,6 +232,7 @@ impl PhaseBias {
                     continue;
                 }
                 let slope = (suy - su * sy / n) / var;
+                let e = &mut edges[i];
                 let du = f64::from(e.boundary) - u0 - su / n;
                 let at = y0 + sy / n + slope * du;
                 let bias = self.at(class(e.boundary), at, slope);
@@ -254,28 +247,14 @@ impl PhaseBias {
     fn first_guess(&self, edges: &[Edge], window: usize, out: &mut Vec<f64>) {
         out.clear();
         out.extend(edges.iter().map(|e| f64::from(e.x)));
-        let mut start = 0;
-        while start < edges.len() {
-            let chain = edges[start].chain;
-            let end = start
-                + edges[start..]
-                    .iter()
-                    .take_while(|e| e.chain == chain)
-                    .count();
-            for i in start..end {
-                let (lo, hi) = (
-                    i.saturating_sub(window).max(start),
-                    (i + window).min(end - 1),
-                );
-                if hi == lo {
-                    continue;
-                }
+        for (i, guess) in out.iter_mut().enumerate() {
+            let (lo, hi) = (widen_down(edges, i, window), widen_up(edges, i, window));
+            if hi != lo {
                 let (first, last) = (&edges[lo], &edges[hi]);
                 let span = f64::from(last.boundary.abs_diff(first.boundary));
                 let magnification = f64::from(last.x - first.x) / span;
-                out[i] -= self.at(class(edges[i].boundary), out[i], magnification);
+                *guess -= self.at(class(edges[i].boundary), *guess, magnification);
             }
-            start = end;
         }
     }
 }

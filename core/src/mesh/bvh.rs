@@ -15,21 +15,60 @@ pub struct RayHit {
     pub normal: Vec3,
 }
 
+/// A subtree: a leaf's triangles (`count > 0`, from `start` in the leaf order) or an inner
+/// node (`count == 0`, `start` its index among the nodes).
 #[derive(Clone, Copy, Debug)]
-pub(super) struct Node {
-    min: [f64; 3],
-    max: [f64; 3],
-    /// Leaf: first triangle in `order`; inner: index of the left child (right = left + 1).
+pub(super) struct Child {
     pub(super) start: u32,
-    /// Leaf: triangle count; inner: 0.
     pub(super) count: u32,
+}
+
+/// An inner node: its two children and their boxes side by side, in `f32` rounded outward (a
+/// box never shrinks, so what it prunes is exactly what the `f64` box would), one cache line a
+/// node: a traversal step reads one line and tests both children at once.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(64))]
+pub(super) struct Node {
+    /// `min[axis][child]`.
+    min: [[f32; 2]; 3],
+    /// `max[axis][child]`.
+    max: [[f32; 2]; 3],
+    pub(super) child: [Child; 2],
+}
+
+impl Node {
+    /// Squared distances from `p` to the two children's boxes (0 inside).
+    #[inline]
+    pub(super) fn distance2(&self, p: &Vec3) -> [f64; 2] {
+        let mut d = [0.0; 2];
+        for k in 0..3 {
+            for (c, d) in d.iter_mut().enumerate() {
+                let e = (f64::from(self.min[k][c]) - p[k])
+                    .max(0.0)
+                    .max(p[k] - f64::from(self.max[k][c]));
+                *d += e * e;
+            }
+        }
+        d
+    }
+
+    /// Whether the ray meets child `c`'s box within `(t_min, t_max)`.
+    #[inline]
+    fn slab(&self, c: usize, o: &Vec3, inv: &[f64; 3], t_min: f64, t_max: f64) -> bool {
+        let lo = self.min.map(|m| f64::from(m[c]));
+        let hi = self.max.map(|m| f64::from(m[c]));
+        slab(&lo, &hi, o, inv, t_min, t_max)
+    }
 }
 
 /// A BVH over the triangles of a mesh (median split on the longest axis).
 #[derive(Clone, Debug)]
 pub struct Bvh {
     mesh: TriangleMesh,
+    /// Inner nodes, parents before children (a subtree's nodes are contiguous).
     nodes: Vec<Node>,
+    root: Child,
+    bounds: ([f64; 3], [f64; 3]),
     order: Vec<u32>,
     /// The corners of `order`'s triangles, in its order: a leaf's triangles are read in one
     /// run of memory rather than through the triangle and vertex tables.
@@ -50,59 +89,15 @@ impl Bvh {
             .collect();
         let mut bvh = Bvh {
             mesh,
-            nodes: Vec::with_capacity(2 * n / LEAF + 1),
+            nodes: Vec::with_capacity(n / LEAF + 1),
+            root: Child { start: 0, count: 0 },
+            bounds: ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
             order: (0..n as u32).collect(),
             corners: Vec::new(),
         };
-        bvh.nodes.push(Node {
-            min: [0.0; 3],
-            max: [0.0; 3],
-            start: 0,
-            count: n as u32,
-        });
-        let mut stack = vec![0usize];
-        while let Some(ni) = stack.pop() {
-            let Node { start, count, .. } = bvh.nodes[ni];
-            let (s, c) = (start as usize, count as usize);
-            let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-            for &t in &bvh.order[s..s + c] {
-                for v in bvh.mesh.corners(t as usize) {
-                    for k in 0..3 {
-                        lo[k] = lo[k].min(v[k]);
-                        hi[k] = hi[k].max(v[k]);
-                    }
-                }
-            }
-            bvh.nodes[ni].min = lo;
-            bvh.nodes[ni].max = hi;
-            if c <= LEAF {
-                continue;
-            }
-            let axis = (0..3)
-                .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
-                .unwrap_or(0);
-            let mid = c / 2;
-            bvh.order[s..s + c].select_nth_unstable_by(mid, |&a, &b| {
-                centroids[a as usize][axis].total_cmp(&centroids[b as usize][axis])
-            });
-            let left = bvh.nodes.len();
-            bvh.nodes.push(Node {
-                min: lo,
-                max: hi,
-                start,
-                count: mid as u32,
-            });
-            bvh.nodes.push(Node {
-                min: lo,
-                max: hi,
-                start: start + mid as u32,
-                count: (c - mid) as u32,
-            });
-            bvh.nodes[ni].start = left as u32;
-            bvh.nodes[ni].count = 0;
-            stack.push(left);
-            stack.push(left + 1);
-        }
+        let (root, lo, hi) = bvh.build(&centroids, 0, n);
+        bvh.root = root;
+        bvh.bounds = (lo, hi);
         bvh.corners = bvh
             .order
             .iter()
@@ -111,34 +106,85 @@ impl Bvh {
         bvh
     }
 
+    /// The subtree over `order[start..start + count]` and its box; inner nodes are appended
+    /// parent first.
+    fn build(
+        &mut self,
+        centroids: &[Vec3],
+        start: usize,
+        count: usize,
+    ) -> (Child, [f64; 3], [f64; 3]) {
+        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        for &t in &self.order[start..start + count] {
+            for v in self.mesh.corners(t as usize) {
+                for k in 0..3 {
+                    lo[k] = lo[k].min(v[k]);
+                    hi[k] = hi[k].max(v[k]);
+                }
+            }
+        }
+        if count <= LEAF {
+            let leaf = Child {
+                start: start as u32,
+                count: count as u32,
+            };
+            return (leaf, lo, hi);
+        }
+        let axis = (0..3)
+            .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
+            .unwrap_or(0);
+        let mid = count / 2;
+        self.order[start..start + count].select_nth_unstable_by(mid, |&a, &b| {
+            centroids[a as usize][axis].total_cmp(&centroids[b as usize][axis])
+        });
+        let index = self.nodes.len();
+        let empty = Child { start: 0, count: 0 };
+        self.nodes.push(Node {
+            min: [[0.0; 2]; 3],
+            max: [[0.0; 2]; 3],
+            child: [empty, empty],
+        });
+        let (left, llo, lhi) = self.build(centroids, start, mid);
+        let (right, rlo, rhi) = self.build(centroids, start + mid, count - mid);
+        let node = &mut self.nodes[index];
+        node.child = [left, right];
+        for k in 0..3 {
+            node.min[k] = [down(llo[k]), down(rlo[k])];
+            node.max[k] = [up(lhi[k]), up(rhi[k])];
+        }
+        let node = Child {
+            start: index as u32,
+            count: 0,
+        };
+        (node, lo, hi)
+    }
+
     /// The mesh this hierarchy was built over.
     pub fn mesh(&self) -> &TriangleMesh {
         &self.mesh
     }
 
-    /// Node `i`.
-    pub(super) fn node(&self, i: usize) -> &Node {
-        &self.nodes[i]
+    /// The whole tree (a leaf when the mesh has at most a leaf's triangles).
+    pub(super) fn root(&self) -> Child {
+        self.root
     }
 
-    /// Triangles of a leaf node, and their corners.
-    pub(super) fn leaf(&self, node: &Node) -> (&[u32], &[[Vec3; 3]]) {
-        let range = node.start as usize..(node.start + node.count) as usize;
+    /// Inner node `i`.
+    #[inline]
+    pub(super) fn node(&self, i: u32) -> &Node {
+        &self.nodes[i as usize]
+    }
+
+    /// Triangles of a leaf, and their corners.
+    #[inline]
+    pub(super) fn leaf(&self, leaf: Child) -> (&[u32], &[[Vec3; 3]]) {
+        let range = leaf.start as usize..(leaf.start + leaf.count) as usize;
         (&self.order[range.clone()], &self.corners[range])
-    }
-
-    /// Squared distance from `p` to the box of node `i` (0 inside).
-    pub(super) fn box_distance2(&self, i: usize, p: &Vec3) -> f64 {
-        let n = &self.nodes[i];
-        (0..3)
-            .map(|k| (n.min[k] - p[k]).max(0.0).max(p[k] - n.max[k]))
-            .map(|d| d * d)
-            .sum()
     }
 
     /// Axis-aligned bounds of the whole mesh.
     pub fn bounds(&self) -> ([f64; 3], [f64; 3]) {
-        (self.nodes[0].min, self.nodes[0].max)
+        self.bounds
     }
 
     /// Nearest hit with `t` in `(t_min, t_max)`.
@@ -147,18 +193,19 @@ impl Bvh {
             return None;
         }
         let inv = [1.0 / d.x, 1.0 / d.y, 1.0 / d.z];
+        let (lo, hi) = self.bounds;
+        if !slab(&lo, &hi, o, &inv, t_min, t_max) {
+            return None;
+        }
         let mut best: Option<RayHit> = None;
         let mut limit = t_max;
-        let mut stack = [0u32; 64];
+        let mut stack = [self.root; 64];
         let mut sp = 1usize;
         while sp > 0 {
             sp -= 1;
-            let node = &self.nodes[stack[sp] as usize];
-            if !slab(node, o, &inv, t_min, limit) {
-                continue;
-            }
-            if node.count > 0 {
-                let (tris, corners) = self.leaf(node);
+            let sub = stack[sp];
+            if sub.count > 0 {
+                let (tris, corners) = self.leaf(sub);
                 for (&tri, [a, b, c]) in tris.iter().zip(corners) {
                     if let Some(t) = moller_trumbore(o, d, a, b, c) {
                         if t > t_min && t < limit {
@@ -171,33 +218,58 @@ impl Bvh {
                         }
                     }
                 }
-            } else if sp + 2 <= stack.len() {
-                stack[sp] = node.start;
-                stack[sp + 1] = node.start + 1;
-                sp += 2;
+                continue;
+            }
+            let node = self.node(sub.start);
+            // The right child is visited first, as it always was (equal hits keep the first).
+            for c in 0..2 {
+                if sp < stack.len() && node.slab(c, o, &inv, t_min, limit) {
+                    stack[sp] = node.child[c];
+                    sp += 1;
+                }
             }
         }
         best
     }
 }
 
+/// The largest `f32` at or below `v`.
+fn down(v: f64) -> f32 {
+    let f = v as f32;
+    if f64::from(f) > v {
+        f.next_down()
+    } else {
+        f
+    }
+}
+
+/// The smallest `f32` at or above `v`.
+fn up(v: f64) -> f32 {
+    let f = v as f32;
+    if f64::from(f) < v {
+        f.next_up()
+    } else {
+        f
+    }
+}
+
 #[inline]
-fn slab(n: &Node, o: &Vec3, inv: &[f64; 3], t_min: f64, t_max: f64) -> bool {
-    let (mut lo, mut hi) = (t_min, t_max);
+fn slab(lo: &[f64; 3], hi: &[f64; 3], o: &Vec3, inv: &[f64; 3], t_min: f64, t_max: f64) -> bool {
+    let (mut t0, mut t1) = (t_min, t_max);
     for k in 0..3 {
         if inv[k].is_infinite() {
             // Ray parallel to this slab: inside it or never (avoids 0 · ∞ = NaN on a face).
-            if o[k] < n.min[k] || o[k] > n.max[k] {
+            if o[k] < lo[k] || o[k] > hi[k] {
                 return false;
             }
             continue;
         }
-        let t1 = (n.min[k] - o[k]) * inv[k];
-        let t2 = (n.max[k] - o[k]) * inv[k];
-        lo = lo.max(t1.min(t2));
-        hi = hi.min(t1.max(t2));
+        let a = (lo[k] - o[k]) * inv[k];
+        let b = (hi[k] - o[k]) * inv[k];
+        t0 = t0.max(a.min(b));
+        t1 = t1.min(a.max(b));
     }
-    lo <= hi
+    t0 <= t1
 }
 
 #[inline]

@@ -270,18 +270,17 @@ impl Bvh {
             best_d2 = (p - q).norm_squared();
             best = Some((hint, q, f, best_d2));
         }
-        let mut stack = [(0u32, 0.0f64); 64];
+        let mut stack = [(self.root(), 0.0f64); 64];
         let mut sp = 1usize;
         while sp > 0 {
             sp -= 1;
-            let (ni, box_d2) = stack[sp];
+            let (sub, box_d2) = stack[sp];
             // A box as near as the best so far may still hold a tie with a lower index.
             if box_d2 > best_d2 * (1.0 + 1e-12) {
                 continue;
             }
-            let node = self.node(ni as usize);
-            if node.count > 0 {
-                let (tris, corners) = self.leaf(node);
+            if sub.count > 0 {
+                let (tris, corners) = self.leaf(sub);
                 for (&tri, [a, b, c]) in tris.iter().zip(corners) {
                     let (q, f) = closest(p, a, b, c);
                     let d2 = (p - q).norm_squared();
@@ -291,11 +290,9 @@ impl Bvh {
                     }
                 }
             } else if sp + 2 <= stack.len() {
-                let (l, r) = (node.start, node.start + 1);
-                let (dl, dr) = (
-                    self.box_distance2(l as usize, p),
-                    self.box_distance2(r as usize, p),
-                );
+                let node = self.node(sub.start);
+                let [dl, dr] = node.distance2(p);
+                let [l, r] = node.child;
                 // Push the farther child first so the nearer is visited next.
                 let (first, second) = if dl <= dr {
                     ((r, dr), (l, dl))

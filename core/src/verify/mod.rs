@@ -32,7 +32,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::geometry::Vec3;
 use find::{FoundSphere, Searchable};
-use fit::{fit_leaving_out, fit_plane, fit_sphere, range, PlaneFit, SphereFit};
+use fit::{
+    correlation_inflation, fit_leaving_out, fit_plane, fit_sphere, range, PlaneFit, SphereFit,
+};
 
 /// Thresholds that decide when an artefact counts as measured.
 #[derive(Clone, Debug)]
@@ -134,7 +136,9 @@ pub struct Figure {
     pub reason: Option<String>,
     /// The residual map's file name, when one was drawn.
     pub map: Option<String>,
-    /// Standard uncertainty of the figure from the fit alone (not the system's), mm.
+    /// Standard uncertainty of the figure from the fit alone (not the system's), mm: from the
+    /// residuals and the points' spread, inflated by the residuals' correlation between
+    /// neighbouring points (a decoder's sub-pixel fit spreads one edge's noise over several).
     pub fit_uncertainty: Option<f64>,
 }
 
@@ -460,7 +464,13 @@ fn measure_sphere(
             params.min_solid_angle
         ));
     }
-    let form = range(kept.iter().map(|p| fit.residual(p)));
+    let residuals: Vec<f64> = kept.iter().map(|p| fit.residual(p)).collect();
+    let form = range(residuals.iter().copied());
+    // Neighbouring points share part of their error: the fit's uncertainties count it.
+    let inflation = correlation_inflation(&kept, &residuals, omega * fit.radius * fit.radius);
+    let mut fit = fit;
+    fit.radius_uncertainty *= inflation.sqrt();
+    fit.centre_uncertainty *= inflation.sqrt();
     Ok(SphereMeasured {
         fit,
         kept,
@@ -545,17 +555,6 @@ fn probing(
         Err(reason) => return fail(reason, Some(best.fit.centre)),
     };
     let u_d = 2.0 * m.fit.radius_uncertainty;
-    if u_d > params.max_uncertainty_share * mpe.probing_size {
-        return fail(
-            format!(
-                "{label}: the seen part of the sphere pins its diameter only to ±{u_d:.3} mm \
-                 (standard uncertainty), more than {:.0} % of the PS limit {} mm",
-                100.0 * params.max_uncertainty_share,
-                mpe.probing_size
-            ),
-            Some(m.fit.centre),
-        );
-    }
     let p = position(label.clone(), Some(m.fit.centre), volume);
     let file = format!("sphere-{index}.png");
     let d = 2.0 * m.fit.radius;
@@ -571,18 +570,35 @@ fn probing(
         Some(file.clone()),
         None,
     );
-    let ps = measured(
-        &cloud.name,
-        p,
-        d,
-        sphere.diameter,
-        d - sphere.diameter,
-        mpe.probing_size,
-        m.kept.len(),
-        m.left_out,
-        Some(file.clone()),
-        Some(u_d),
-    );
+    // PF is the residuals' range whatever the cap; PS needs a diameter the points pin.
+    let ps = if u_d > params.max_uncertainty_share * mpe.probing_size {
+        let reason = format!(
+            "{label}: the seen part of the sphere pins its diameter only to ±{u_d:.3} mm \
+             (standard uncertainty, the error neighbouring points share counted), more than \
+             {:.0} % of the PS limit {} mm",
+            100.0 * params.max_uncertainty_share,
+            mpe.probing_size
+        );
+        Figure {
+            points: m.kept.len(),
+            left_out: m.left_out,
+            fit_uncertainty: Some(u_d),
+            ..not_measured(&cloud.name, p, sphere.diameter, mpe.probing_size, reason)
+        }
+    } else {
+        measured(
+            &cloud.name,
+            p,
+            d,
+            sphere.diameter,
+            d - sphere.diameter,
+            mpe.probing_size,
+            m.kept.len(),
+            m.left_out,
+            Some(file.clone()),
+            Some(u_d),
+        )
+    };
     let map = sphere_map(
         file,
         format!("{label}: radial residuals, PF {:.3} mm", m.form),

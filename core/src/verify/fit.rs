@@ -155,8 +155,8 @@ const SHARED_REACH: f64 = 4.0;
 
 /// How much the correlation of neighbouring points' residuals inflates the variance of a
 /// smooth fitted quantity (a sphere's radius, its centre) over its white-noise estimate, at
-/// least 1: `1 + Σᵢ Σⱼ rᵢ rⱼ / Σᵢ rᵢ²` over the pairs of distinct points nearer than
-/// [`SHARED_REACH`] spacings (`area`: the surface the points cover, mm², gives the spacing).
+/// least 1: `1 + Σᵢ Σⱼ rᵢ rⱼ / Σᵢ rᵢ²` over the pairs of distinct points nearer than four
+/// mean spacings (`area`: the surface the points cover, mm², gives the spacing).
 /// For independent residuals the pair sum is about 0; where a decoder's sub-pixel fit spreads
 /// one edge's noise over several pixels, neighbours share part of it and the fit pins the
 /// quantity that much less.

@@ -317,6 +317,58 @@ mod tests {
         m
     }
 
+    /// The nearest hit ahead of `o` along `d` through the hierarchy and by testing every
+    /// triangle (infinite for none).
+    fn hit_and_brute_force(bvh: &Bvh, mesh: &TriangleMesh, o: &Vec3, d: &Vec3) -> (f64, f64) {
+        let brute = (0..mesh.triangles.len())
+            .filter_map(|i| {
+                let [a, b, c] = mesh.corners(i);
+                moller_trumbore(o, d, &a, &b, &c).filter(|&t| t > 0.0)
+            })
+            .fold(f64::INFINITY, f64::min);
+        let got = bvh
+            .intersect(o, d, 0.0, f64::INFINITY)
+            .map_or(f64::INFINITY, |h| h.t);
+        (got, brute)
+    }
+
+    #[test]
+    fn boxes_round_outward_to_f32() {
+        let mut rng = crate::testing::Rng(11);
+        for _ in 0..10_000 {
+            let v = rng.range(-1.0, 1.0) * 10f64.powf(rng.range(-3.0, 7.0));
+            let (lo, hi) = (f64::from(down(v)), f64::from(up(v)));
+            assert!(lo <= v && v <= hi, "{v}: [{lo}, {hi}]");
+            // The nearest f32 on each side: no looser than one step.
+            assert!(f64::from(down(v).next_up()) > v || lo == v, "{v}");
+            assert!(f64::from(up(v).next_down()) < v || hi == v, "{v}");
+        }
+    }
+
+    #[test]
+    fn bvh_far_from_the_origin_matches_brute_force() {
+        // At 1e6 mm an f32 step is 0.06 mm: boxes must still hold every hit.
+        let mut mesh = grid(20);
+        for v in &mut mesh.vertices {
+            *v += Vec3::new(1.0e6 + 0.013, -2.0e6 + 0.029, 3.0e5);
+        }
+        let bvh = Bvh::new(mesh.clone());
+        let mut rng = crate::testing::Rng(5);
+        for k in 0..300 {
+            let o = Vec3::new(
+                1.0e6 + rng.range(0.0, 20.0),
+                -2.0e6 + rng.range(0.0, 20.0),
+                3.0e5 + 5.0,
+            );
+            let d = Vec3::new(rng.range(-0.2, 0.2), rng.range(-0.2, 0.2), -1.0);
+            let (got, brute) = hit_and_brute_force(&bvh, &mesh, &o, &d);
+            assert!(
+                got == brute || (got.is_infinite() && brute.is_infinite()),
+                "ray {k}: {got} vs {brute}"
+            );
+        }
+    }
+
     #[test]
     fn bvh_matches_brute_force() {
         let mesh = grid(30);
@@ -332,15 +384,7 @@ mod tests {
                 0.03 * ((k % 7) as f64 - 3.0),
                 -1.0,
             );
-            let brute = (0..mesh.triangles.len())
-                .filter_map(|i| {
-                    let [a, b, c] = mesh.corners(i);
-                    moller_trumbore(&o, &d, &a, &b, &c).filter(|&t| t > 0.0)
-                })
-                .fold(f64::INFINITY, f64::min);
-            let got = bvh
-                .intersect(&o, &d, 0.0, f64::INFINITY)
-                .map_or(f64::INFINITY, |h| h.t);
+            let (got, brute) = hit_and_brute_force(&bvh, &mesh, &o, &d);
             assert!(
                 (got - brute).abs() < 1e-9 || (got.is_infinite() && brute.is_infinite()),
                 "ray {k}: {got} vs {brute}"

@@ -290,6 +290,32 @@ fn what_cannot_be_measured_says_why() {
         reasons[2]
     );
     assert_eq!(cert.verdict, Status::NotMeasured);
+    // A cap wide enough to find and judge its form (35°, 1.1 sr) but too narrow to pin the
+    // diameter within a quarter of PS's MPE: PF is given, PS is not, with its uncertainty.
+    for seed in 0..4 {
+        let mut rng = Noise::new(40 + seed);
+        let c = Vec3::new(rng.range(-200.0, 200.0), rng.range(-200.0, 200.0), 50.0);
+        let (cap, _) = sphere_points(&mut rng, c, 20.0, 1.0, 0.012, |u| {
+            u.z > 35f64.to_radians().cos()
+        });
+        let cert = run(&a, &[], &[], &[cloud("cap.ply", cap)]);
+        let (pf, ps) = (&cert.probing_form[0], &cert.probing_size[0]);
+        assert!(
+            pf.measured.is_some() && pf.status != Status::NotMeasured,
+            "seed {seed}: {pf:?}"
+        );
+        assert_eq!(ps.status, Status::NotMeasured, "seed {seed}: {ps:?}");
+        let u = ps.fit_uncertainty.expect("PS's uncertainty");
+        assert!(u > 0.25 * a.mpe.probing_size, "seed {seed}: u {u}");
+        assert!(
+            ps.reason
+                .as_deref()
+                .is_some_and(|r| r.contains("pins its diameter")),
+            "seed {seed}: {:?}",
+            ps.reason
+        );
+        assert!(ps.measured.is_none() && ps.pass.is_none());
+    }
     // Half a flat (the other half occluded) and a bar with one sphere out of view.
     let (half, _) = flat_cloud(&mut rng, Vec3::zeros(), 10.0, 5.0, 0.0, 0.005, |u, _| {
         u < 0.5

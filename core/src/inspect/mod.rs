@@ -887,6 +887,7 @@ fn trusted_region_fit(
     let cad_rim = rim::CadRim::of(cad);
     let edge_cloud = (!cad_rim.is_empty()).then(|| rim::RimCloud::new(cloud, pts));
     let mut rim_fit: Option<rim::RimFit> = None;
+    let mut search: Option<rim::Search> = None;
     let (mut pose, mut total) = fit_to_surface(pts, cad, start, 15, &|_, d| {
         if d.abs() < 5.0 {
             1.0
@@ -923,6 +924,12 @@ fn trusted_region_fit(
         .sum::<f64>()
         / pts.len().max(1) as f64)
         .sqrt();
+    // How far a change of pose moves the points: their centroid's shift and the turn at their
+    // RMS radius, mm.
+    let motion = |a: &Pose, b: &Pose| {
+        (a * centroid - b * centroid).norm()
+            + crate::register::rotation_angle_deg(&(a * b.inverse())).to_radians() * radius
+    };
     lap("rough fit and noise", total);
     let mut last_moved = f64::INFINITY;
     for _pass in 0..4 {
@@ -984,21 +991,23 @@ fn trusted_region_fit(
                 pose,
                 params.tolerance,
                 // where the rim is first found, other placements compete (the basin to refine in)
-                rim_fit.is_none().then_some(contenders),
+                if rim_fit.is_none() {
+                    rim::Rivals::Search(contenders)
+                } else {
+                    rim::Rivals::None
+                },
             )
         }) {
             pose = r.pose;
+            let mut r = r;
+            if r.search.is_some() {
+                search = r.search.take();
+            }
             rim_fit = Some(r);
         }
         lap("rim", total);
-        let turned = crate::register::rotation_angle_deg(&(pose * before.inverse()));
-        let shifted = (pose * centroid - before * centroid).norm();
-        tracing::debug!(
-            turned,
-            shifted,
-            "trusted-region fit: the pass moved the pose"
-        );
-        let moved = shifted + turned.to_radians() * radius;
+        let moved = motion(&pose, &before);
+        tracing::debug!(moved, "trusted-region fit: the pass moved the pose");
         if passes_settled(moved, last_moved, params.tolerance) {
             break;
         }
@@ -1007,8 +1016,23 @@ fn trusted_region_fit(
     tracing::debug!(noise, floor, "trusted-region fit");
     let set = selected(pts, &trusted);
     // Once converged: other placements that would put the scan's edges on the rim as well
-    // (and the coarse alignment's runners-up) are looked for.
+    // (and the coarse alignment's runners-up) are looked for. Where the pose was given (no
+    // runners-up) and the search made where the rim was first found started from nearly this
+    // pose — the points since moved by less than a tenth of the tolerance (how far apart a
+    // rival must place them) and of the millimetre to which its slides were bracketed — the
+    // placements it found are fitted again instead. With runners-up the search is made again:
+    // fitted again from where the early search left it, a symmetric dome's turned runner-up
+    // was judged a rival that the fresh search did not find (the rim panels' family).
     if let (Some(_), Some(edge_cloud), false) = (&rim_fit, &edge_cloud, crate::budget::spent()) {
+        let rivals = match &search {
+            Some(s)
+                if contenders.is_empty()
+                    && motion(&pose, &s.from) < 0.1 * params.tolerance.min(1.0) =>
+            {
+                rim::Rivals::Reuse(s)
+            }
+            _ => rim::Rivals::Search(contenders),
+        };
         rim_fit = rim::register(
             edge_cloud,
             &set,
@@ -1016,7 +1040,7 @@ fn trusted_region_fit(
             &cad_rim,
             pose,
             params.tolerance,
-            Some(contenders),
+            rivals,
         );
         if let Some(r) = &rim_fit {
             pose = r.pose;

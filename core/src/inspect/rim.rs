@@ -160,6 +160,31 @@ pub(super) struct RimFit {
     /// A placement turned against this one puts as much of the scan's edge on the rim (a
     /// symmetric outline): the rim cannot settle which way round the part lies.
     pub turned_rival: bool,
+    /// The placements its rival search found, for a later judgement from nearly this pose;
+    /// `None` where no search was made.
+    pub search: Option<Search>,
+}
+
+/// The placements a rival search converged to besides its winner, and the contenders that
+/// reach no rim (fitted to the surface alone).
+pub(super) struct Search {
+    /// The winner's pose: where the slides that found the others started.
+    pub from: Pose,
+    others: Vec<Converged>,
+    short: Vec<Pose>,
+}
+
+/// Where [`register`]'s rival placements come from.
+pub(super) enum Rivals<'a> {
+    /// None are looked for (a later pass from a pose already judged).
+    None,
+    /// The scan slid along each motion the surface barely pins, and these other starting
+    /// poses (the coarse alignment's runners-up) with their own slides.
+    Search(&'a [Pose]),
+    /// Those an earlier search found, each fitted again from where it ended. The slides that
+    /// found them were bracketed to a millimetre, so a fit that has since moved by a small
+    /// share of the tolerance would start them where they started.
+    Reuse(&'a Search),
 }
 
 /// Why a rim seen along `seen` mm does not pin the fit, given the rival placement (how far
@@ -368,7 +393,13 @@ struct Scene<'a> {
 
 impl Scene<'_> {
     /// The windowed fit from `pose`; `None` when too few edges are found.
-    fn converge(&self, mut pose: Pose) -> Option<Converged> {
+    fn converge(&self, pose: Pose) -> Option<Converged> {
+        self.converge_in(pose, &WINDOWS)
+    }
+
+    /// The windowed fit from `pose`, narrowing through `windows` (mm, widest first; each
+    /// raised to the finest).
+    fn converge_in(&self, mut pose: Pose, windows: &[f64]) -> Option<Converged> {
         let centroid = Point3::from(
             self.fit_set
                 .iter()
@@ -378,7 +409,7 @@ impl Scene<'_> {
         let all = |_: &[f64; 3], _: f64| 1.0;
         // Every round refits the same points from a pose near the last.
         let hints = no_hints(self.fit_set.len());
-        let mut windows: Vec<f64> = WINDOWS.iter().map(|d| d.max(self.finest)).collect();
+        let mut windows: Vec<f64> = windows.iter().map(|d| d.max(self.finest)).collect();
         windows.dedup();
         for (w, &depth) in windows.iter().enumerate() {
             // A wider window only brings the edges within the next one's reach; the last
@@ -541,9 +572,8 @@ const FLAT_EVIDENCE: f64 = 0.9;
 /// Register `surface` (cloud frame: the trusted points) to `cad` from `pose` together with the
 /// edges `cloud` shows on the CAD's rim; `None` when too few edges are found (the scan
 /// does not reach the rim, or the CAD has none). `tolerance` (mm): poses that place the points
-/// less than this apart are one. `contenders`: other starting poses (the coarse alignment's
-/// runners-up) whose rim fits compete with this one; `None`: no search for rivals (a later
-/// pass from a pose already judged).
+/// less than this apart are one. `rivals`: the other placements whose rim fits compete with
+/// this one.
 pub(super) fn register(
     cloud: &RimCloud,
     surface: &[[f64; 3]],
@@ -551,7 +581,7 @@ pub(super) fn register(
     rim: &CadRim,
     pose: Pose,
     tolerance: f64,
-    contenders: Option<&[Pose]>,
+    rivals: Rivals,
 ) -> Option<RimFit> {
     if rim.is_empty() || surface.len() < 10 {
         return None;
@@ -586,45 +616,62 @@ pub(super) fn register(
         return None;
     }
     let first = scene.converge(pose)?;
-    let Some(contenders) = contenders else {
-        return Some(finish(rim, &scene, first, None, false));
-    };
-    // The fit with the most rim wins; another that rests on rim samples the winner does not
-    // use (a scan stopping short of the rim all round matches it at either side; a symmetric
-    // outline matches it turned) is a rival.
-    let mut all = scene.rivals(&first);
-    // A contender's placement is searched along its own slides as well: it starts where the
-    // coarse alignment left it, perhaps as far off along the surface as the first was. One
-    // whose scan reaches no rim at all is kept apart: placed there, the scan may simply end
-    // short of the rim.
-    let mut short = Vec::new();
-    for p in contenders {
-        match scene.converge(*p) {
-            Some(c) => {
-                all.extend(scene.rivals(&c));
-                all.push(c);
-            }
-            None => short.push(scene.surface_fit(*p)),
-        }
-    }
-    all.push(first);
-    all.sort_by_key(|c| std::cmp::Reverse(c.matched().len()));
-    let best = all.swap_remove(0);
-    let matched = best.matched();
     let probe: Vec<Point3<f64>> = scene
         .fit_set
         .iter()
         .step_by(7)
         .map(|p| Point3::from(*p))
         .collect();
+    // How far apart two placements put the points, mm.
+    let apart = |a: &Pose, b: &Pose| {
+        probe
+            .iter()
+            .map(|p| (a * p - b * p).norm())
+            .fold(0.0, f64::max)
+    };
+    // The fit with the most rim wins; another that rests on rim samples the winner does not
+    // use (a scan stopping short of the rim all round matches it at either side; a symmetric
+    // outline matches it turned) is a rival.
+    let (mut all, short) = match rivals {
+        Rivals::None => return Some(finish(rim, &scene, first, None, false, None)),
+        // Each placement an earlier search found is fitted again from where it ended, to the
+        // trusted points as they are now: its edges are within the finest window's reach.
+        Rivals::Reuse(search) => (
+            search
+                .others
+                .par_iter()
+                .filter_map(|c| scene.converge_in(c.pose, &[scene.finest]))
+                .collect(),
+            search.short.iter().map(|p| scene.surface_fit(*p)).collect(),
+        ),
+        Rivals::Search(contenders) => {
+            let mut all = scene.rivals(&first);
+            // A contender's placement is searched along its own slides as well: it starts
+            // where the coarse alignment left it, perhaps as far off along the surface as the
+            // first was. One whose scan reaches no rim at all is kept apart: placed there, the
+            // scan may simply end short of the rim.
+            let mut short = Vec::new();
+            for p in contenders {
+                match scene.converge(*p) {
+                    Some(c) => {
+                        all.extend(scene.rivals(&c));
+                        all.push(c);
+                    }
+                    None => short.push(scene.surface_fit(*p)),
+                }
+            }
+            (all, short)
+        }
+    };
+    all.push(first);
+    all.sort_by_key(|c| std::cmp::Reverse(c.matched().len()));
+    let best = all.swap_remove(0);
+    let matched = best.matched();
     // (how far apart the points are placed, the rival's rim, turned by more than 10°)
     let rivals: Vec<(f64, usize, bool)> = all
         .iter()
         .filter_map(|c| {
-            let apart = probe
-                .iter()
-                .map(|p| (c.pose * p - best.pose * p).norm())
-                .fold(0.0, f64::max);
+            let apart = apart(&c.pose, &best.pose);
             // Each placement's own evidence: the rim it matches that the other does not. A
             // rival matches at least about half as much of its own as the winner does (a
             // wavering shadow line brushing the rim at its crests is not a trim line). Only a
@@ -685,12 +732,9 @@ pub(super) fn register(
     );
     let allowed = own_past + 3 + sample.len() / 1000;
     let mut rivals = rivals;
-    for pose in short {
+    for &pose in &short {
         let rel = pose * best.pose.inverse();
-        let apart = probe
-            .iter()
-            .map(|p| (pose * p - best.pose * p).norm())
-            .fold(0.0, f64::max);
+        let apart = apart(&pose, &best.pose);
         if apart > tolerance.max(0.5)
             && scene.surface_rms(&pose) <= 1.25 * own_rms + 0.005
             && scene.overhang(&pose, &sample) <= allowed
@@ -705,12 +749,18 @@ pub(super) fn register(
         .filter(|r| !r.2 || r.1 == 0)
         .max_by(|a, b| a.0.total_cmp(&b.0));
     let turned_rival = rivals.iter().any(|r| r.2);
+    let search = Search {
+        from: best.pose,
+        others: all,
+        short,
+    };
     Some(finish(
         rim,
         &scene,
         best,
         rival.map(|r| (r.0, r.1)),
         turned_rival,
+        Some(search),
     ))
 }
 
@@ -722,6 +772,7 @@ fn finish(
     best: Converged,
     rival: Option<(f64, usize)>,
     turned_rival: bool,
+    search: Option<Search>,
 ) -> RimFit {
     let edges = pairs(rim, &best.pose, &best.obs, &best.weights);
     let used: Vec<f64> = best
@@ -745,6 +796,7 @@ fn finish(
         edges,
         summary,
         turned_rival,
+        search,
     }
 }
 
@@ -842,5 +894,87 @@ mod tests {
             &mut u
         )
         .is_none());
+    }
+
+    /// A domed sheet (a sphere's cap, which slides along itself) scanned as a strip across
+    /// its whole width: ending short of the rim at both ends of its length, the strip may sit
+    /// anywhere along it (a rival placement rests on as much rim); reaching the rim at one end,
+    /// it is pinned. The judgement made again from the search's placements, fitted again where
+    /// they ended, must be the fresh search's.
+    #[test]
+    fn rivals_found_once_are_judged_again_from_where_they_ended() {
+        let r = 5000.0;
+        let mesh = TriangleMesh::height_field(80, 60, (-200.0, 200.0), (-150.0, 150.0), |x, y| {
+            -(x * x + y * y) / (2.0 * r)
+        });
+        let cad = SignedDistance::new(mesh);
+        let rim = CadRim::of(&cad);
+        for (x0, x1, slides) in [(-100.0, 100.0, true), (-200.0, 0.0, false)] {
+            // a lattice of 1.5 mm whose outermost points lie half a spacing inside its ends
+            let mut pts = Vec::new();
+            let mut x = x0 + 0.75;
+            while x <= x1 {
+                let mut y = -149.25;
+                while y <= 150.0 {
+                    pts.push([x, y, -(x * x + y * y) / (2.0 * r)]);
+                    y += 1.5;
+                }
+                x += 1.5;
+            }
+            let cloud = RimCloud::new(&pts, &pts);
+            let surface: Vec<[f64; 3]> = pts.iter().step_by(3).copied().collect();
+            let start = Pose::new(Vector3::new(0.3, -0.2, 0.1), Vector3::new(0.0, 0.0, 2e-4));
+            let case = format!("strip x {x0}…{x1}");
+            let fresh = register(
+                &cloud,
+                &surface,
+                &cad,
+                &rim,
+                start,
+                0.3,
+                Rivals::Search(&[]),
+            )
+            .expect("the rim is seen");
+            let search = fresh.search.as_ref().expect("a search was made");
+            let again = register(
+                &cloud,
+                &surface,
+                &cad,
+                &rim,
+                fresh.pose,
+                0.3,
+                Rivals::Reuse(search),
+            )
+            .expect("the rim is seen");
+            assert_eq!(
+                fresh.summary.ambiguous.is_some(),
+                slides,
+                "{case}: {:?}",
+                fresh.summary
+            );
+            assert_eq!(
+                again.summary.ambiguous.is_some(),
+                slides,
+                "{case}: {:?}",
+                again.summary
+            );
+            assert!(!fresh.turned_rival && !again.turned_rival, "{case}");
+            if !slides {
+                // Where it is pinned it is placed where it is, to within half the points'
+                // spacing (a lattice's last column says where the surface ends only that well),
+                // and stays there (where it slides, the placements along the slide are all as
+                // good: any may win).
+                let off = |pose: &Pose| {
+                    pts.iter()
+                        .map(|p| (pose * Point3::from(*p) - Point3::from(*p)).norm())
+                        .fold(0.0, f64::max)
+                };
+                let (a, b) = (off(&fresh.pose), off(&again.pose));
+                assert!(
+                    a < 0.75 && (a - b).abs() < 0.01,
+                    "{case}: {a}, {b} mm from the truth"
+                );
+            }
+        }
     }
 }

@@ -590,15 +590,14 @@ fn local_noise(points: &[[f64; 3]], dev: &[f64]) -> f64 {
         .zip(dev.par_iter())
         .map_init(Vec::new, |nn, (p, d)| {
             tree.k_nearest(p, K + 1, nn);
-            let others: Vec<f64> = nn
+            let (sum, count) = nn
                 .iter()
                 .filter(|(i, d2)| *d2 > 0.0 && dev[*i].is_finite())
-                .map(|(i, _)| dev[*i])
-                .collect();
-            if others.is_empty() || !d.is_finite() {
+                .fold((0.0, 0usize), |(s, c), (i, _)| (s + dev[*i], c + 1));
+            if count == 0 || !d.is_finite() {
                 return f64::NAN;
             }
-            d - others.iter().sum::<f64>() / others.len() as f64
+            d - sum / count as f64
         })
         .collect();
     let abs: Vec<f64> = resid

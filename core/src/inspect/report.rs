@@ -128,11 +128,14 @@ pub struct Report {
     pub characteristics: Vec<super::CharacteristicResult>,
 }
 
-fn percentile(sorted: &[f64], q: f64) -> f64 {
-    if sorted.is_empty() {
+/// The `q` quantile of `v` (reordering it): the value that `v` sorted holds at index
+/// `round((len − 1) q)`, found in linear time; NaN when `v` is empty.
+fn percentile_of(v: &mut [f64], q: f64) -> f64 {
+    if v.is_empty() {
         return f64::NAN;
     }
-    sorted[((sorted.len() - 1) as f64 * q).round() as usize]
+    let k = ((v.len() - 1) as f64 * q).round() as usize;
+    *v.select_nth_unstable_by(k, f64::total_cmp).1
 }
 
 pub(super) fn build(
@@ -145,23 +148,22 @@ pub(super) fn build(
     non_finite: usize,
 ) -> Report {
     let tol = params.tolerance;
-    let mut sorted: Vec<f64> = dev.iter().copied().filter(|d| d.is_finite()).collect();
-    let beyond_cad = dev.len() - sorted.len();
-    sorted.sort_by(f64::total_cmp);
-    let n = sorted.len().max(1) as f64;
-    let mean = sorted.iter().sum::<f64>() / n;
-    let rms = (sorted.iter().map(|d| d * d).sum::<f64>() / n).sqrt();
+    let mut finite: Vec<f64> = dev.iter().copied().filter(|d| d.is_finite()).collect();
+    let beyond_cad = dev.len() - finite.len();
+    let n = finite.len().max(1) as f64;
+    let mean = finite.iter().sum::<f64>() / n;
+    let rms = (finite.iter().map(|d| d * d).sum::<f64>() / n).sqrt();
     let statistics = Statistics {
-        points: sorted.len(),
+        points: finite.len(),
         mean,
         rms,
         std: (rms * rms - mean * mean).max(0.0).sqrt(),
-        min: sorted.first().copied().unwrap_or(f64::NAN),
-        max: sorted.last().copied().unwrap_or(f64::NAN),
-        p05: percentile(&sorted, 0.05),
-        p50: percentile(&sorted, 0.5),
-        p95: percentile(&sorted, 0.95),
-        within_tolerance: sorted.iter().filter(|d| d.abs() <= tol).count() as f64 / n,
+        min: percentile_of(&mut finite, 0.0),
+        max: percentile_of(&mut finite, 1.0),
+        p05: percentile_of(&mut finite, 0.05),
+        p50: percentile_of(&mut finite, 0.5),
+        p95: percentile_of(&mut finite, 0.95),
+        within_tolerance: finite.iter().filter(|d| d.abs() <= tol).count() as f64 / n,
         beyond_cad,
         non_finite,
         outside_inspected: 0,
@@ -316,8 +318,7 @@ fn datum_residual(
     let mean = v.iter().sum::<f64>() / k;
     let rms = (v.iter().map(|e| e * e).sum::<f64>() / k).sqrt();
     v.iter_mut().for_each(|e| *e = e.abs());
-    v.sort_by(f64::total_cmp);
-    let p99 = percentile(&v, 0.99);
+    let p99 = percentile_of(&mut v, 0.99);
     let in_tolerance = match frame {
         Some(m) if m.error.is_some() => false,
         Some(m) if d.feature != Feature::Surface => {

@@ -18,7 +18,7 @@ use crate::register::Pose;
 /// Tiles per side of the grid on the principal plane.
 const GRID: usize = 4;
 /// Points the refits use at most (a uniform subsample of the trusted set).
-const MAX_POINTS: usize = 12_000;
+const MAX_POINTS: usize = 6_000;
 /// Iteration limit of each refit (they start at the fitted pose).
 const MAX_ITERATIONS: usize = 30;
 

@@ -918,7 +918,6 @@ fn inspect_part(
             merged.len()
         ));
     }
-    write_deviation_ply(&dir.join("deviation.ply"), &r.points, &r.deviations)?;
     let title = MapTitle {
         part: part.id.clone(),
         // The scan is written into `<id>.partial` and renamed when complete.
@@ -927,14 +926,22 @@ fn inspect_part(
         }),
         time: utc_time(),
     };
-    write_deviation_png(
-        &dir.join("deviation.png"),
-        &r.points,
-        &r.deviations,
-        &r.report,
-        &part.datums,
-        &title,
-    )?;
+    // The cloud's file and the map's picture side by side (each mostly one thread's work).
+    let (ply, png) = rayon::join(
+        || write_deviation_ply(&dir.join("deviation.ply"), &r.points, &r.deviations),
+        || {
+            write_deviation_png(
+                &dir.join("deviation.png"),
+                &r.points,
+                &r.deviations,
+                &r.report,
+                &part.datums,
+                &title,
+            )
+        },
+    );
+    ply?;
+    png?;
     ris_core::io::write_atomic(
         &dir.join("report.json"),
         serde_json::to_string_pretty(&r.report)?.as_bytes(),

@@ -520,8 +520,8 @@ fn flat_seeds(pts: &[[f64; 3]], cad: &SignedDistance, pose: &Pose) -> Vec<bool> 
         .collect();
     let sub_pts: Vec<[f64; 3]> = sub.iter().map(|&i| cad_pts[i]).collect();
     let sub_dev = cad.query_all(&sub_pts);
-    let sigma = local_noise(&sub_pts, &sub_dev).max(1e-6);
     let tree = crate::spatial::KdTree::new(&sub_pts);
+    let sigma = local_noise(&sub_pts, &tree, &sub_dev).max(1e-6);
     let centres: Vec<usize> = (0..sub_pts.len()).step_by(3).collect();
     let bend: Vec<f64> = centres
         .par_iter()
@@ -581,13 +581,16 @@ fn flat_seeds(pts: &[[f64; 3]], cad: &SignedDistance, pose: &Pose) -> Vec<bool> 
 }
 
 /// Robust σ of the measurement noise: deviation minus the mean deviation of its 16 nearest
-/// neighbours, scaled for the neighbour mean's own noise.
-fn local_noise(points: &[[f64; 3]], dev: &[f64]) -> f64 {
-    let tree = crate::spatial::KdTree::new(points);
+/// neighbours, scaled for the neighbour mean's own noise; at most 20 000 points, evenly spread,
+/// are the centres (the median's own scatter is then under 1 %). `tree` indexes `points` (in
+/// any frame: only the distances between them count).
+fn local_noise(points: &[[f64; 3]], tree: &crate::spatial::KdTree, dev: &[f64]) -> f64 {
     const K: usize = 16;
+    const CENTRES: usize = 20_000;
     let resid: Vec<f64> = points
         .par_iter()
         .zip(dev.par_iter())
+        .step_by((points.len() / CENTRES).max(1))
         .map_init(Vec::new, |nn, (p, d)| {
             tree.k_nearest(p, K + 1, nn);
             let (sum, count) = nn
@@ -884,7 +887,8 @@ fn trusted_region_fit(
         )
     };
     let cad_rim = rim::CadRim::of(cad);
-    let edge_cloud = (!cad_rim.is_empty()).then(|| rim::RimCloud::new(cloud, pts));
+    let pts_tree = crate::spatial::KdTree::new(pts);
+    let edge_cloud = (!cad_rim.is_empty()).then(|| rim::RimCloud::new(cloud, pts, &pts_tree));
     let mut rim_fit: Option<rim::RimFit> = None;
     let mut search: Option<rim::Search> = None;
     let (mut pose, mut total) = fit_to_surface(pts, cad, start, 15, &|_, d| {
@@ -896,10 +900,7 @@ fn trusted_region_fit(
     });
     // Measurement noise from the local roughness of the deviation field (a point against the
     // mean of its neighbours): smooth deformation and misalignment cancel there, noise does not.
-    let noise = {
-        let cad_pts = to_cad(pts, &pose);
-        local_noise(&cad_pts, &cad.query_all(&cad_pts))
-    };
+    let noise = local_noise(pts, &pts_tree, &cad.query_all(&to_cad(pts, &pose)));
     // The threshold anneals from half the tolerance down to three noise sigmas, so the trusted
     // set contracts onto the undeformed majority instead of settling on a compromise.
     let floor = (3.0 * noise).max(0.01);

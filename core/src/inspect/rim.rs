@@ -354,8 +354,8 @@ impl<'a> RimCloud<'a> {
     /// across the rim then holds enough of `pts` for a run even where the scan ends a few
     /// millimetres short of the rim. Sized by the spacing of `pts` alone, a strip of a sparse
     /// random cloud held about as few points as a run needs, and which strips showed an edge
-    /// changed from one round to the next.
-    pub(super) fn new(cloud: &'a [[f64; 3]], sparse: &[[f64; 3]]) -> Self {
+    /// changed from one round to the next. `sparse_tree` indexes `sparse`.
+    pub(super) fn new(cloud: &'a [[f64; 3]], sparse: &[[f64; 3]], sparse_tree: &KdTree) -> Self {
         let step = cloud.len() / EDGE_POINTS;
         let pts: std::borrow::Cow<'a, [[f64; 3]]> = if step > 1 {
             cloud.iter().step_by(step).copied().collect()
@@ -365,7 +365,7 @@ impl<'a> RimCloud<'a> {
         let tree = KdTree::new(&pts);
         let spacing = point_spacing(&pts, &tree);
         let sparse_spacing = if sparse.len() < pts.len() {
-            point_spacing(sparse, &KdTree::new(sparse))
+            point_spacing(sparse, sparse_tree)
         } else {
             spacing
         };
@@ -921,7 +921,7 @@ mod tests {
                 }
                 x += 1.5;
             }
-            let cloud = RimCloud::new(&pts, &pts);
+            let cloud = RimCloud::new(&pts, &pts, &KdTree::new(&pts));
             let surface: Vec<[f64; 3]> = pts.iter().step_by(3).copied().collect();
             let start = Pose::new(Vector3::new(0.3, -0.2, 0.1), Vector3::new(0.0, 0.0, 2e-4));
             let case = format!("strip x {x0}…{x1}");

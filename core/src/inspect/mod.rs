@@ -998,11 +998,9 @@ fn trusted_region_fit(
                 },
             )
         }) {
-            pose = r.pose;
             let mut r = r;
-            if r.search.is_some() {
-                search = r.search.take();
-            }
+            pose = r.pose;
+            search = r.search.take().or(search);
             rim_fit = Some(r);
         }
         lap("rim", total);

@@ -86,17 +86,18 @@ fn ris_project(display: &str, args: &[&str], until: &str) -> (Child, Vec<String>
 #[test]
 fn patterns_reach_the_screen_pixel_for_pixel_and_the_window_conforms() {
     let (w, h) = (1280u32, 800u32);
-    let x = Xvfb::start(w, h);
+    let x = Xvfb::start(None, w, h).expect("Xvfb (.ci/run installs it)");
+    let display = x.display();
     let layout = CodeLayout::new(w, h);
     // A stripe pattern (the acceptance case) and a mid grey, which an sRGB surface would
     // re-encode (77 → 149).
     for name in ["gray_col_04", "flat_077"] {
         let (mut child, _) = ris_project(
-            &x.display,
+            &display,
             &["--pattern", name, "--projector", "1280x800", "--hold", "6"],
             "on monitor",
         );
-        let (cw, ch, px) = capture_root(&x.display);
+        let (cw, ch, px) = capture_root(&display);
         let _ = child.kill();
         let _ = child.wait();
         assert_eq!((cw, ch), (w, h));
@@ -115,7 +116,7 @@ fn patterns_reach_the_screen_pixel_for_pixel_and_the_window_conforms() {
         );
     }
     let (mut child, lines) = ris_project(
-        &x.display,
+        &display,
         &["--projector", "1280x800", "--conformance"],
         "conformance: ok",
     );

@@ -82,9 +82,9 @@ fn a_scan_through_the_gige_camera_and_the_projector_window_equals_the_mock_scan(
         .capture;
 
     // The hardware paths.
-    let x = Xvfb::start(layout.width, layout.height);
+    let x = Xvfb::start(None, layout.width, layout.height).expect("Xvfb (.ci/run installs it)");
     // This test binary holds one test, so no other thread reads the environment meanwhile.
-    std::env::set_var("DISPLAY", &x.display);
+    std::env::set_var("DISPLAY", x.display());
     let window = WindowProjector::open(&WindowOptions {
         width: layout.width,
         height: layout.height,

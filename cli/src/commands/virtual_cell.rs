@@ -17,6 +17,7 @@ use ris_core::pattern::{Pattern, ProjectionMask};
 use ris_core::sim::{Scene, Simulator};
 use ris_drivers::mock::NOMINAL_EXPOSURE_US;
 use ris_projector::screen::{Monitor, Screen};
+use ris_projector::xvfb::Xvfb;
 use serde::Deserialize;
 
 /// How often the device side polls its software trigger, Hz.
@@ -139,7 +140,7 @@ pub struct RigCamera {
 
 /// A running virtual rig: Xvfb and the camera processes, stopped on drop.
 pub struct VirtualRig {
-    xvfb: Child,
+    xvfb: Xvfb,
     cameras: Vec<Child>,
     /// The X display (`:N`).
     pub display: String,
@@ -152,9 +153,8 @@ pub struct VirtualRig {
 impl VirtualRig {
     /// Process ids of Xvfb and the cameras.
     pub fn pids(&self) -> Vec<u32> {
-        std::iter::once(&self.xvfb)
-            .chain(&self.cameras)
-            .map(Child::id)
+        std::iter::once(self.xvfb.pid())
+            .chain(self.cameras.iter().map(Child::id))
             .collect()
     }
 
@@ -193,8 +193,6 @@ impl Drop for VirtualRig {
             let _ = c.kill();
             let _ = c.wait();
         }
-        let _ = self.xvfb.kill();
-        let _ = self.xvfb.wait();
     }
 }
 
@@ -323,31 +321,8 @@ pub fn start_rig(rig: &Path, ris: &Path, display: Option<&str>) -> Result<Virtua
             rig.display()
         );
     }
-    let display = match display {
-        Some(d) => d.to_string(),
-        None => {
-            let n = (40..200)
-                .find(|n| {
-                    !Path::new(&format!("/tmp/.X11-unix/X{n}")).exists()
-                        && !Path::new(&format!("/tmp/.X{n}-lock")).exists()
-                })
-                .ok_or_else(|| anyhow!("no free X display number"))?;
-            format!(":{n}")
-        }
-    };
-    let xvfb = Command::new("Xvfb")
-        .args([
-            &display,
-            "-screen",
-            "0",
-            &format!("{width}x{height}x24"),
-            "-nolisten",
-            "tcp",
-        ])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .context("starting Xvfb (apt-get install xvfb)")?;
+    let xvfb = Xvfb::start(display, width, height)?;
+    let display = xvfb.display();
     let mut rig_run = VirtualRig {
         xvfb,
         cameras: Vec::new(),
@@ -355,17 +330,8 @@ pub fn start_rig(rig: &Path, ris: &Path, display: Option<&str>) -> Result<Virtua
         monitors: Vec::new(),
         addresses: file.camera.iter().map(|c| c.address.clone()).collect(),
     };
-    let deadline = Instant::now() + Duration::from_secs(20);
-    let screen = loop {
-        match Screen::connect(Some(&display)) {
-            Ok(s) => break s,
-            Err(e) if Instant::now() < deadline => {
-                tracing::debug!(error = %e, "waiting for Xvfb");
-                std::thread::sleep(Duration::from_millis(100));
-            }
-            Err(e) => bail!("Xvfb on {display} did not start: {e}"),
-        }
-    };
+    let screen = Screen::connect(Some(&display))
+        .with_context(|| format!("the screen of Xvfb on {display}"))?;
     let mut x = 0i16;
     let wanted: Vec<Monitor> = sizes
         .iter()

@@ -10,6 +10,7 @@ mod connection;
 pub mod screen;
 #[cfg(feature = "window")]
 mod window;
+pub mod xvfb;
 
 #[cfg(feature = "window")]
 pub use window::{WindowOptions, WindowProjector};

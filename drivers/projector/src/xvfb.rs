@@ -1,0 +1,187 @@
+//! An X screen without a monitor: an Xvfb server for the projector windows of the virtual
+//! cell and of the tests. It takes a free display number (one whose lock names a process that
+//! is gone counts as free: a server killed with SIGKILL leaves its lock and socket behind) and
+//! removes its lock and socket when it is stopped, so that runs do not use the numbers up.
+
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Display numbers tried when none is asked for.
+const DISPLAYS: std::ops::Range<u32> = 40..200;
+
+/// Why an Xvfb server did not start.
+#[derive(Debug, thiserror::Error)]
+pub enum XvfbError {
+    /// No display number in 40..200 is free.
+    #[error("no free X display number in 40..200 (/tmp/.X<N>-lock all held by running servers)")]
+    NoFreeDisplay,
+    /// `Xvfb` could not be run.
+    #[error("starting Xvfb (apt-get install xvfb): {0}")]
+    Spawn(std::io::Error),
+    /// The server ended or did not serve its socket in time.
+    #[error("Xvfb on {display} did not start: {reason}")]
+    NotStarted {
+        /// The display asked for.
+        display: String,
+        /// What was seen.
+        reason: String,
+    },
+}
+
+/// A running Xvfb server, stopped (and its lock and socket removed) on drop.
+pub struct Xvfb {
+    child: Child,
+    number: u32,
+}
+
+impl Xvfb {
+    /// Start a server with one `width` × `height` × 24 screen on `display` (`:N`), or on the
+    /// first free display number; returns once it serves its socket (at most 20 s).
+    pub fn start(display: Option<&str>, width: u32, height: u32) -> Result<Xvfb, XvfbError> {
+        let asked = display
+            .map(|d| {
+                d.trim_start_matches(':')
+                    .parse::<u32>()
+                    .map_err(|_| XvfbError::NotStarted {
+                        display: d.to_string(),
+                        reason: "the display is not of the form :N".into(),
+                    })
+            })
+            .transpose()?;
+        // Two runs can pick the same free number at once: the one whose server loses takes
+        // the next.
+        let mut last = XvfbError::NoFreeDisplay;
+        for _ in 0..if asked.is_some() { 1 } else { 8 } {
+            let number = match asked {
+                Some(n) => n,
+                None => DISPLAYS
+                    .clone()
+                    .find(|&n| is_free(n))
+                    .ok_or(XvfbError::NoFreeDisplay)?,
+            };
+            match Xvfb::start_on(number, width, height) {
+                Ok(x) => return Ok(x),
+                Err(e @ XvfbError::Spawn(_)) => return Err(e),
+                Err(e) => last = e,
+            }
+        }
+        Err(last)
+    }
+
+    fn start_on(number: u32, width: u32, height: u32) -> Result<Xvfb, XvfbError> {
+        let display = format!(":{number}");
+        let child = Command::new("Xvfb")
+            .args([
+                &display,
+                "-screen",
+                "0",
+                &format!("{width}x{height}x24"),
+                "-nolisten",
+                "tcp",
+            ])
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .map_err(XvfbError::Spawn)?;
+        let mut x = Xvfb { child, number };
+        let deadline = Instant::now() + Duration::from_secs(20);
+        loop {
+            if let Ok(Some(status)) = x.child.try_wait() {
+                // Not ours to clean: the display was taken by another server.
+                x.number = u32::MAX;
+                return Err(XvfbError::NotStarted {
+                    display,
+                    reason: format!("it exited ({status}); the display may be in use"),
+                });
+            }
+            // The lock names the server before it creates its socket: a socket left by
+            // another server does not pass for this one.
+            if lock_pid(number) == Some(x.child.id()) && socket(number).exists() {
+                return Ok(x);
+            }
+            if Instant::now() > deadline {
+                return Err(XvfbError::NotStarted {
+                    display,
+                    reason: "no socket within 20 s".into(),
+                });
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// The display name (`:N`).
+    pub fn display(&self) -> String {
+        format!(":{}", self.number)
+    }
+
+    /// The server's process id.
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+}
+
+impl Drop for Xvfb {
+    fn drop(&mut self) {
+        let pid = self.child.id();
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        if self.number != u32::MAX && lock_pid(self.number) == Some(pid) {
+            let _ = std::fs::remove_file(socket(self.number));
+            let _ = std::fs::remove_file(lock(self.number));
+        }
+    }
+}
+
+fn lock(n: u32) -> PathBuf {
+    PathBuf::from(format!("/tmp/.X{n}-lock"))
+}
+
+fn socket(n: u32) -> PathBuf {
+    PathBuf::from(format!("/tmp/.X11-unix/X{n}"))
+}
+
+/// The process id written in display `n`'s lock file.
+fn lock_pid(n: u32) -> Option<u32> {
+    std::fs::read_to_string(lock(n)).ok()?.trim().parse().ok()
+}
+
+/// Whether display `n` can be taken: no lock, or a lock whose process is gone (its lock and
+/// socket are then removed). A socket without a lock belongs to no server either.
+fn is_free(n: u32) -> bool {
+    match std::fs::read_to_string(lock(n)) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            let _ = std::fs::remove_file(socket(n));
+            true
+        }
+        Err(_) => false,
+        Ok(text) => match text.trim().parse::<u32>() {
+            Ok(pid) if !PathBuf::from(format!("/proc/{pid}")).exists() => {
+                let _ = std::fs::remove_file(socket(n));
+                std::fs::remove_file(lock(n)).is_ok()
+            }
+            _ => false,
+        },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A lock naming a process that is gone frees its display; one naming a live process (this
+    /// one) does not.
+    #[test]
+    fn stale_locks_free_their_display_and_live_ones_do_not() {
+        let n = (DISPLAYS.end..DISPLAYS.end + 800)
+            .find(|&n| !lock(n).exists())
+            .expect("an unused number");
+        // A pid above the kernel's largest (2^22).
+        std::fs::write(lock(n), "   4194399\n").expect("lock");
+        assert!(is_free(n) && !lock(n).exists());
+        std::fs::write(lock(n), format!("{:>10}\n", std::process::id())).expect("lock");
+        assert!(!is_free(n) && lock(n).exists());
+        std::fs::remove_file(lock(n)).expect("remove");
+    }
+}

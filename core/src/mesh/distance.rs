@@ -398,6 +398,50 @@ mod tests {
         assert!(sd.query(&(v * 0.9)).expect("q").distance < 0.0);
     }
 
+    /// Far from the origin an `f32` box is coarser than the distances searched (0.06 mm at
+    /// 10⁶ mm): the pruning on boxes rounded outward to `f32` still finds brute force's triangle (the
+    /// lowest index of the nearest) and its exact distance, for points on a facet, near it and
+    /// off the sphere.
+    #[test]
+    fn far_from_the_origin_the_nearest_triangle_is_brute_forces() {
+        let mut mesh = sphere(5.0, 16);
+        let offset = Vec3::new(1.0e6 + 0.013, -2.0e6 + 0.029, 3.0e5);
+        for v in &mut mesh.vertices {
+            *v += offset;
+        }
+        let sd = SignedDistance::new(mesh.clone());
+        let mut rng = crate::testing::Rng(17);
+        for k in 0..3000 {
+            let p = if k % 2 == 0 {
+                // On a facet, or 0.1 µm off it: nearer than the f32 grid's step.
+                let t = (rng.range(0.0, 1.0) * mesh.triangles.len() as f64) as usize;
+                let [a, b, c] = mesh.corners(t.min(mesh.triangles.len() - 1));
+                let (u, v) = (rng.range(0.0, 1.0), rng.range(0.0, 1.0));
+                let (u, v) = if u + v > 1.0 {
+                    (1.0 - u, 1.0 - v)
+                } else {
+                    (u, v)
+                };
+                let n = (b - a).cross(&(c - a)).normalize();
+                a + (b - a) * u + (c - a) * v + n * [0.0, 1e-4, -1e-4][k / 2 % 3]
+            } else {
+                let dir = Vec3::new(rng.gauss(), rng.gauss(), rng.gauss()).normalize();
+                offset + dir * (5.0 + [0.0, -0.02, 0.3, 4.0][k / 2 % 4] * rng.range(0.5, 1.0))
+            };
+            let (mut best, mut best_d2) = (u32::MAX, f64::INFINITY);
+            for t in 0..mesh.triangles.len() {
+                let [a, b, c] = mesh.corners(t);
+                let d2 = (p - closest_on_triangle(&p, &a, &b, &c).0).norm_squared();
+                if d2 < best_d2 {
+                    (best, best_d2) = (t as u32, d2);
+                }
+            }
+            let got = sd.query(&p).expect("non-empty");
+            assert_eq!(got.triangle, best, "point {k}");
+            assert_eq!(got.distance.abs(), best_d2.sqrt(), "point {k}");
+        }
+    }
+
     #[test]
     fn a_point_equally_near_several_triangles_gets_the_same_one_whatever_the_hint() {
         let mesh = sphere(50.0, 12);

@@ -699,10 +699,7 @@ fn main() -> Result<()> {
                 commands::simulate::omni(&scene, &out, show.as_deref())?;
                 return Ok(());
             }
-            commands::simulate::run(&scene, &out)?;
-            if let Some(picture) = show {
-                commands::simulate::show(&scene, &picture, &out)?;
-            }
+            commands::simulate::run(&scene, &out, show.as_deref())?;
         }
         Command::Omni {
             sensor,

@@ -37,7 +37,7 @@ pub fn run(scene: Option<&Path>, out: &Path) -> Result<DemoResult> {
         }
     };
     let sim_dir = out.join("sim");
-    let simulate::Simulated::Scene(o) = simulate::run(&scene_path, &sim_dir)? else {
+    let simulate::Simulated::Scene(o) = simulate::run(&scene_path, &sim_dir, None)? else {
         anyhow::bail!(
             "{}: a calibration-session scene cannot be demonstrated; give an object scene",
             scene_path.display()

@@ -76,9 +76,13 @@ pub fn omni(scene: &Path, out: &Path, show: Option<&Path>) -> Result<()> {
     Ok(())
 }
 
-/// Render `scene` into `out` with a progress bar.
-pub fn run(scene: &Path, out: &Path) -> Result<Simulated> {
+/// Render `scene` into `out` with a progress bar; with `show` (a projector picture, checked
+/// before anything is rendered) also the camera's view of it, `out/shown.png`.
+pub fn run(scene: &Path, out: &Path, show: Option<&Path>) -> Result<Simulated> {
     let s = Scene::load(scene).with_context(|| format!("reading scene {}", scene.display()))?;
+    let shown = show
+        .map(|picture| Ok::<_, anyhow::Error>((picture, projector_picture(&s, picture)?)))
+        .transpose()?;
     if let Some(c) = &s.file.calibration {
         let layers = c.heights.len() as u64;
         let pb = progress::bar(layers * frames_per_capture(&s), "rendering");
@@ -99,13 +103,23 @@ pub fn run(scene: &Path, out: &Path) -> Result<Simulated> {
             o.session.display(),
             o.truth.display()
         );
+        if let Some((picture, mask)) = &shown {
+            let sim = Simulator::new(s);
+            let frame = sim.frame_with(&sim.layout(), Pattern::White, Some(mask), 1.0, 1);
+            let path = out.join("shown.png");
+            frame
+                .save_png(&path)
+                .with_context(|| format!("writing {}", path.display()))?;
+            println!("camera view of {}: {}", picture.display(), path.display());
+        }
         return Ok(Simulated::Session(o));
     }
     let frames = frames_per_capture(&s);
     // The scene is ray-cast before the first frame (tens of seconds for a large one).
     let pb = progress::bar(2 * frames, "ray-casting");
     let stage = Mutex::new(String::new());
-    let result = simulate(&s, out, &|what, _, _| {
+    let mask = shown.as_ref().map(|(_, m)| m);
+    let result = simulate(&s, out, mask, &|what, _, _| {
         if let Ok(mut st) = stage.lock() {
             if *st != what {
                 pb.set_message(what.to_string());
@@ -125,12 +139,15 @@ pub fn run(scene: &Path, out: &Path) -> Result<Simulated> {
         o.sensor.display(),
         o.truth.display()
     );
+    if let (Some((picture, _)), Some(path)) = (&shown, &o.shown) {
+        println!("camera view of {}: {}", picture.display(), path.display());
+    }
     Ok(Simulated::Scene(o))
 }
 
-/// Render the camera's view of `picture` projected on `scene` to `<out>/shown.png`.
-pub fn show(scene: &Path, picture: &Path, out: &Path) -> Result<()> {
-    let s = Scene::load(scene).with_context(|| format!("reading scene {}", scene.display()))?;
+/// The projector picture at `picture` as a mask for `s`'s projector: an 8-bit grey image of
+/// the projector's size.
+fn projector_picture(s: &Scene, picture: &Path) -> Result<ProjectionMask> {
     let img = GrayImage::load(picture).with_context(|| format!("reading {}", picture.display()))?;
     let (pw, ph) = (s.projector.width, s.projector.height);
     if (img.width, img.height) != (pw, ph) {
@@ -147,15 +164,7 @@ pub fn show(scene: &Path, picture: &Path, out: &Path) -> Result<()> {
             picture.display()
         );
     };
-    let sim = Simulator::new(s);
-    let mask = ProjectionMask::picture(pw, ph, pixels);
-    let frame = sim.frame_with(&sim.layout(), Pattern::White, Some(&mask), 1.0, 1);
-    let path = out.join("shown.png");
-    frame
-        .save_png(&path)
-        .with_context(|| format!("writing {}", path.display()))?;
-    println!("camera view of {}: {}", picture.display(), path.display());
-    Ok(())
+    Ok(ProjectionMask::picture(pw, ph, pixels))
 }
 
 /// Frames in one full capture of the scene's projector.

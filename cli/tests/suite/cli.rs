@@ -171,6 +171,23 @@ fn bad_input_gives_clear_errors_and_no_output() {
         &out,
     );
 
+    // A picture to show that is not the projector's size: refused by name, nothing written.
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/scenes/demo.toml");
+    let sim_out = dir.path().join("never_sim");
+    fails(
+        &[
+            "simulate",
+            "--scene",
+            s(&scene),
+            "--out",
+            s(&sim_out),
+            "--show",
+            s(&cap.join("black.png")),
+        ],
+        &["black.png", "160x120", "1024x768"],
+        &sim_out,
+    );
+
     // Nothing in view (every frame black): no points, an error, no file.
     let bad = dir.path().join("all-black");
     copy_dir(&cap, &bad);

@@ -199,27 +199,34 @@ pub struct SimOutput {
     pub sensor: PathBuf,
     /// Ground-truth directory.
     pub truth: PathBuf,
+    /// The camera's view of the picture asked for (`shown.png`), when one was.
+    pub shown: Option<PathBuf>,
 }
 
-/// Render `scene` into `out`: `capture/`, `reference/`, `sensor.toml` and `truth/`. Everything
-/// is written into a temporary sibling directory first and renamed into place at the end.
+/// Render `scene` into `out`: `capture/`, `reference/`, `sensor.toml`, `truth/` and, with
+/// `show` (a projector picture as a mask under full white), the camera's view of it,
+/// `shown.png`, from the same ray cast. Everything is written into a temporary sibling
+/// directory first and renamed into place at the end.
 pub fn simulate(
     scene: &Scene,
     out: &Path,
+    show: Option<&ProjectionMask>,
     progress: &(dyn Fn(&str, usize, usize) + Sync),
 ) -> Result<SimOutput> {
-    write_dir_atomically(out, |tmp| write_simulation(scene, tmp, progress))?;
+    write_dir_atomically(out, |tmp| write_simulation(scene, tmp, show, progress))?;
     Ok(SimOutput {
         capture: out.join("capture"),
         reference: out.join("reference"),
         sensor: out.join("sensor.toml"),
         truth: out.join("truth"),
+        shown: show.map(|_| out.join("shown.png")),
     })
 }
 
 fn write_simulation(
     scene: &Scene,
     dir: &Path,
+    show: Option<&ProjectionMask>,
     progress: &(dyn Fn(&str, usize, usize) + Sync),
 ) -> Result<()> {
     create_dir(dir)?;
@@ -227,6 +234,10 @@ fn write_simulation(
     let layout = sim.layout();
     sim.capture(&layout, 0, &|i, n| progress("capture", i, n))
         .save(&dir.join("capture"))?;
+    if let Some(mask) = show {
+        sim.frame_with(&layout, Pattern::White, Some(mask), 1.0, 1)
+            .save_png(&dir.join("shown.png"))?;
+    }
     write_truth(&sim.cache.truth, scene, &dir.join("truth"))?;
     let reference = Simulator::new(scene.reference());
     reference

@@ -135,7 +135,7 @@ fn residual_field_from_the_sensor_file_is_applied() {
     f.projector.k = [[450.0, 0.0, 127.5], [0.0, 450.0, 95.5], [0.0, 0.0, 1.0]];
     let scene = Scene::from_file(f, Path::new("."), "small demo").expect("scene");
     let out = dir.path().join("sim");
-    let o = ris_core::sim::simulate(&scene, &out, &|_, _, _| {}).expect("simulate");
+    let o = ris_core::sim::simulate(&scene, &out, None, &|_, _, _| {}).expect("simulate");
     let params = DecodeParams::default();
     let sensor = ris_core::sensor::Sensor::load(&o.sensor).expect("sensor");
     let capture = ris_core::capture::CaptureSet::load(&o.capture).expect("capture");

@@ -49,22 +49,26 @@ impl Xvfb {
                     })
             })
             .transpose()?;
-        // Two runs can pick the same free number at once: the one whose server loses takes
-        // the next.
+        if let Some(n) = asked {
+            // Clears a lock and socket left by a server that is gone; a live one makes the
+            // server below exit, which is reported.
+            is_free(n);
+            return Xvfb::start_on(n, width, height);
+        }
+        // Two runs can pick the same free number at once, or a number can be unusable in a
+        // way its files do not show: the server that loses moves on to the next number.
         let mut last = XvfbError::NoFreeDisplay;
-        for _ in 0..if asked.is_some() { 1 } else { 8 } {
-            let number = match asked {
-                Some(n) => n,
-                None => DISPLAYS
-                    .clone()
-                    .find(|&n| is_free(n))
-                    .ok_or(XvfbError::NoFreeDisplay)?,
+        let mut from = DISPLAYS.start;
+        for _ in 0..8 {
+            let Some(number) = (from..DISPLAYS.end).find(|&n| is_free(n)) else {
+                break;
             };
             match Xvfb::start_on(number, width, height) {
                 Ok(x) => return Ok(x),
                 Err(e @ XvfbError::Spawn(_)) => return Err(e),
                 Err(e) => last = e,
             }
+            from = number + 1;
         }
         Err(last)
     }
@@ -183,5 +187,26 @@ mod tests {
         std::fs::write(lock(n), format!("{:>10}\n", std::process::id())).expect("lock");
         assert!(!is_free(n) && lock(n).exists());
         std::fs::remove_file(lock(n)).expect("remove");
+    }
+
+    /// A display that its files call free but whose server cannot start (its socket's path is
+    /// a directory) is passed over for the next number, and the server's lock and socket are
+    /// gone once it is stopped. Needs `Xvfb` (`.ci/run` installs it).
+    #[test]
+    fn an_unusable_display_is_passed_over_and_a_stopped_server_leaves_no_files() {
+        let blocked = DISPLAYS
+            .clone()
+            .find(|&n| is_free(n))
+            .expect("a free display");
+        let dir = socket(blocked);
+        std::fs::create_dir_all(dir.join("in-the-way")).expect("blocker");
+        let started = Xvfb::start(None, 64, 48);
+        std::fs::remove_dir_all(&dir).expect("remove blocker");
+        let x = started.expect("Xvfb on another display");
+        let n = x.number;
+        assert!(n > blocked, "display :{n}, blocked :{blocked}");
+        assert_eq!(lock_pid(n), Some(x.pid()));
+        drop(x);
+        assert!(!lock(n).exists() && !socket(n).exists());
     }
 }

@@ -300,7 +300,7 @@ mod tests {
     /// A frame under a mask is the same whether its blur came from the cache or not, and a
     /// changed mask is blurred anew.
     /// A small scene with inter-reflection (so every table of the cache is filled).
-    fn small_scene() -> Scene {
+    pub(super) fn small_scene() -> Scene {
         let text = r#"
 [camera]
 width = 80

@@ -7,7 +7,9 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 
-use super::light::Light;
+use std::sync::{Arc, Mutex, PoisonError};
+
+use super::light::{Grid, Light, Tap};
 use super::scene::Scene;
 use crate::geometry::Vec3;
 use crate::io::bytes::{ByteReader, ByteWriter};
@@ -47,8 +49,25 @@ pub struct Truth {
     pub lit: Vec<f32>,
 }
 
+/// A sample's place on a light's grid and its weight (0 where the light does not reach it).
+#[derive(Clone, Copy, Debug, Default)]
+struct Located {
+    tap: Tap,
+    weight: f32,
+}
+
+/// Every sample located on the grids of one frame's lights: the direct light's for the lit
+/// samples, each bounce channel's for the inter-reflection samples.
+#[derive(Debug)]
+struct FrameTaps {
+    light: Grid,
+    bounce: Vec<Grid>,
+    lit: Vec<Located>,
+    bounced: Vec<Located>,
+}
+
 /// Precomputed light transport of a scene.
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 pub struct RenderCache {
     width: u32,
     height: u32,
@@ -61,6 +80,26 @@ pub struct RenderCache {
     ambient: Vec<f32>,
     /// Ground truth.
     pub truth: Truth,
+    /// The samples located on the grids of the last frame's lights: the patterns of a scan
+    /// share their grids, so each frame after the first only reads its profiles.
+    taps: Mutex<Option<Arc<FrameTaps>>>,
+}
+
+impl Clone for RenderCache {
+    fn clone(&self) -> RenderCache {
+        RenderCache {
+            width: self.width,
+            height: self.height,
+            offsets: self.offsets.clone(),
+            samples: self.samples.clone(),
+            bounce_offsets: self.bounce_offsets.clone(),
+            bounces: self.bounces.clone(),
+            bounce_sigmas: self.bounce_sigmas.clone(),
+            ambient: self.ambient.clone(),
+            truth: self.truth.clone(),
+            taps: Mutex::new(None),
+        }
+    }
 }
 
 impl RenderCache {
@@ -172,6 +211,7 @@ impl RenderCache {
                 material,
                 lit,
             },
+            taps: Mutex::new(None),
         })
     }
 
@@ -298,6 +338,7 @@ impl RenderCache {
                 material: Vec::with_capacity(w * h),
                 lit: Vec::with_capacity(w * h),
             },
+            taps: Mutex::new(None),
         };
         cache.offsets.push(0);
         cache.bounce_offsets.push(0);
@@ -335,19 +376,39 @@ impl RenderCache {
         let w = self.width as usize;
         let mut out = vec![0u8; w * self.height as usize];
         let gain = (255.0 * exposure) as f32;
+        let taps = self.taps(light, bounce);
+        let mask = light.mask();
         out.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
             let mut rng =
                 SmallRng::seed_from_u64(seed ^ (v as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
             for (u, px) in row.iter_mut().enumerate() {
                 let i = v * w + u;
                 let mut radiance = self.ambient[i];
-                for s in &self.samples[self.offsets[i] as usize..self.offsets[i + 1] as usize] {
-                    radiance += s.weight * light.sample(s.u, s.v);
+                let lit = self.offsets[i] as usize..self.offsets[i + 1] as usize;
+                match mask {
+                    None => {
+                        for t in &taps.lit[lit] {
+                            radiance += t.weight * light.stripes_at(&t.tap);
+                        }
+                    }
+                    Some(m) => {
+                        for (t, s) in taps.lit[lit.clone()].iter().zip(&self.samples[lit]) {
+                            radiance += t.weight * (light.stripes_at(&t.tap) * m.sample(s.u, s.v));
+                        }
+                    }
                 }
-                let b = &self.bounces
-                    [self.bounce_offsets[i] as usize..self.bounce_offsets[i + 1] as usize];
-                for s in b {
-                    radiance += s.weight * bounce[s.channel as usize].sample(s.u, s.v);
+                let bounced = self.bounce_offsets[i] as usize..self.bounce_offsets[i + 1] as usize;
+                for (t, s) in taps.bounced[bounced.clone()]
+                    .iter()
+                    .zip(&self.bounces[bounced])
+                {
+                    let l = &bounce[s.channel as usize];
+                    let stripes = l.stripes_at(&t.tap);
+                    radiance += t.weight
+                        * match l.mask() {
+                            None => stripes,
+                            Some(m) => stripes * m.sample(s.u, s.v),
+                        };
                 }
                 let signal = f64::from(gain * radiance);
                 let sigma = (noise * noise + shot_noise * signal).sqrt();
@@ -362,6 +423,39 @@ impl RenderCache {
             }
         });
         out
+    }
+
+    /// The samples located on the grids of `light` and `bounce`: the last frame's when the
+    /// grids are the same, else found again (in parallel) and kept for the next frame.
+    fn taps(&self, light: &Light, bounce: &[Light]) -> Arc<FrameTaps> {
+        let grid = light.grid();
+        let grids: Vec<Grid> = bounce.iter().map(Light::grid).collect();
+        let mut kept = self.taps.lock().unwrap_or_else(PoisonError::into_inner);
+        if let Some(t) = kept.as_ref() {
+            if t.light == grid && t.bounce == grids {
+                return Arc::clone(t);
+            }
+        }
+        let locate = |l: &Light, u: f32, v: f32, weight: f32| match l.locate(u, v) {
+            Some(tap) => Located { tap, weight },
+            None => Located::default(),
+        };
+        let taps = Arc::new(FrameTaps {
+            light: grid,
+            bounce: grids,
+            lit: self
+                .samples
+                .par_iter()
+                .map(|s| locate(light, s.u, s.v, s.weight))
+                .collect(),
+            bounced: self
+                .bounces
+                .par_iter()
+                .map(|s| locate(&bounce[s.channel as usize], s.u, s.v, s.weight))
+                .collect(),
+        });
+        *kept = Some(Arc::clone(&taps));
+        taps
     }
 }
 
@@ -407,4 +501,73 @@ fn direct_light(scene: &Scene, p: &Vec3, n: &Vec3, op: &Vec3, d0: f64) -> Option
         falloff: (d0 / dist).powi(2),
         to_light: l,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pattern::{CodeLayout, Pattern, ProjectionMask};
+    use crate::sim::Simulator;
+
+    /// Each frame, its samples located once for a scan, is the sum the lights give at every
+    /// sample, bit for bit: plain and masked, direct and inter-reflected light, and again after
+    /// a blur that moves the profiles' grids.
+    #[test]
+    fn frames_read_every_sample_as_the_lights_give_it() {
+        let sim = Simulator::new(crate::sim::tests::small_scene());
+        let c = &sim.cache;
+        assert!(!c.bounces.is_empty(), "the scene inter-reflects");
+        let layout = CodeLayout::new(128, 96);
+        let mask = ProjectionMask {
+            width: 128,
+            height: 96,
+            values: (0..128 * 96).map(|i| 0.2 + (i % 7) as f32 / 10.0).collect(),
+        };
+        let direct = |light: &Light, bounce: &[Light]| -> Vec<u8> {
+            (0..c.ambient.len())
+                .map(|i| {
+                    let mut radiance = c.ambient[i];
+                    for s in &c.samples[c.offsets[i] as usize..c.offsets[i + 1] as usize] {
+                        radiance += s.weight * light.sample(s.u, s.v);
+                    }
+                    for s in
+                        &c.bounces[c.bounce_offsets[i] as usize..c.bounce_offsets[i + 1] as usize]
+                    {
+                        radiance += s.weight * bounce[s.channel as usize].sample(s.u, s.v);
+                    }
+                    (f64::from(255.0f32 * radiance) + 0.5).clamp(0.0, 255.0) as u8
+                })
+                .collect()
+        };
+        let column = Pattern::Gray {
+            axis: crate::pattern::CodeAxis::Column,
+            bit: 3,
+            inverse: false,
+        };
+        for blur in [0.6f32, 2.5] {
+            for masked in [false, true] {
+                for pattern in [Pattern::White, column] {
+                    let lights = |sigma: f32| {
+                        let l = sim.light_blurred(&layout, pattern, sigma);
+                        if masked {
+                            l.masked(&mask, sigma)
+                        } else {
+                            l
+                        }
+                    };
+                    let light = lights(blur);
+                    let bounce: Vec<Light> = c
+                        .bounce_sigmas
+                        .iter()
+                        .map(|s| lights((blur * blur + s * s).sqrt()))
+                        .collect();
+                    let frame = c.render(&light, &bounce, 1.0, 0.0, 0.0, 0);
+                    assert!(
+                        frame == direct(&light, &bounce),
+                        "blur {blur}, masked {masked}, {pattern:?}"
+                    );
+                }
+            }
+        }
+    }
 }

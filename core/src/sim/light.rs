@@ -200,14 +200,58 @@ impl BlurredMask {
     /// The blurred mask at projector coordinate (u, v), bilinear, clamped to the edges.
     #[inline]
     pub(crate) fn sample(&self, u: f32, v: f32) -> f32 {
-        let x = u.clamp(0.0, (self.width - 1) as f32);
-        let y = v.clamp(0.0, (self.height - 1) as f32);
+        self.at(&self.locate(u, v))
+    }
+
+    /// The mask's size (every blur of one mask has it, so a point located on one is located
+    /// on all).
+    pub(crate) fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    /// Where (u, v) falls on the mask's pixels.
+    #[inline(always)]
+    pub(crate) fn locate(&self, u: f32, v: f32) -> MaskTap {
+        MaskTap::locate(self.size(), u, v)
+    }
+
+    /// The mask, bilinear, at a located point (of a mask of the same size).
+    #[inline(always)]
+    pub(crate) fn at(&self, t: &MaskTap) -> f32 {
+        let i = t.index as usize;
+        let (r, d) = (t.right as usize, t.down as usize);
+        let v = &self.values;
+        (v[i] * (1.0 - t.fx) + v[i + r] * t.fx) * (1.0 - t.fy)
+            + (v[i + d] * (1.0 - t.fx) + v[i + d + r] * t.fx) * t.fy
+    }
+}
+
+/// A projector point's place on a mask's pixels: the pixel at or below it, the steps to the
+/// next pixel right and down (0 on the last column or row), and the fractions.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct MaskTap {
+    index: u32,
+    right: u32,
+    down: u32,
+    fx: f32,
+    fy: f32,
+}
+
+impl MaskTap {
+    /// Where (u, v) falls on the pixels of a mask of `(width, height)`, clamped to the edges.
+    #[inline(always)]
+    pub(crate) fn locate((width, height): (usize, usize), u: f32, v: f32) -> MaskTap {
+        let x = u.clamp(0.0, (width - 1) as f32);
+        let y = v.clamp(0.0, (height - 1) as f32);
         let (x0, y0) = (x as usize, y as usize);
-        let (x1, y1) = ((x0 + 1).min(self.width - 1), (y0 + 1).min(self.height - 1));
-        let (fx, fy) = (x - x0 as f32, y - y0 as f32);
-        let at = |xx: usize, yy: usize| self.values[yy * self.width + xx];
-        (at(x0, y0) * (1.0 - fx) + at(x1, y0) * fx) * (1.0 - fy)
-            + (at(x0, y1) * (1.0 - fx) + at(x1, y1) * fx) * fy
+        let (x1, y1) = ((x0 + 1).min(width - 1), (y0 + 1).min(height - 1));
+        MaskTap {
+            index: (y0 * width + x0) as u32,
+            right: (x1 - x0) as u32,
+            down: ((y1 - y0) * width) as u32,
+            fx: x - x0 as f32,
+            fy: y - y0 as f32,
+        }
     }
 }
 

@@ -9,7 +9,7 @@ use rayon::prelude::*;
 
 use std::sync::{Arc, Mutex, PoisonError};
 
-use super::light::{Grid, Light, Tap};
+use super::light::{Grid, Light, MaskTap, Tap};
 use super::scene::Scene;
 use crate::geometry::Vec3;
 use crate::io::bytes::{ByteReader, ByteWriter};
@@ -66,6 +66,15 @@ struct FrameTaps {
     bounced: Vec<Located>,
 }
 
+/// Every sample located on the pixels of a projection mask of one size (the blurs of one mask,
+/// and the masks of a scan, share it).
+#[derive(Debug)]
+struct MaskTaps {
+    size: (usize, usize),
+    lit: Vec<MaskTap>,
+    bounced: Vec<MaskTap>,
+}
+
 /// Precomputed light transport of a scene.
 #[derive(Debug)]
 pub struct RenderCache {
@@ -83,6 +92,8 @@ pub struct RenderCache {
     /// The samples located on the grids of the last frame's lights: the patterns of a scan
     /// share their grids, so each frame after the first only reads its profiles.
     taps: Mutex<Option<Arc<FrameTaps>>>,
+    /// The samples located on the last mask's pixels.
+    mask_taps: Mutex<Option<Arc<MaskTaps>>>,
 }
 
 impl Clone for RenderCache {
@@ -98,6 +109,7 @@ impl Clone for RenderCache {
             ambient: self.ambient.clone(),
             truth: self.truth.clone(),
             taps: Mutex::new(None),
+            mask_taps: Mutex::new(None),
         }
     }
 }
@@ -212,6 +224,7 @@ impl RenderCache {
                 lit,
             },
             taps: Mutex::new(None),
+            mask_taps: Mutex::new(None),
         })
     }
 
@@ -339,6 +352,7 @@ impl RenderCache {
                 lit: Vec::with_capacity(w * h),
             },
             taps: Mutex::new(None),
+            mask_taps: Mutex::new(None),
         };
         cache.offsets.push(0);
         cache.bounce_offsets.push(0);
@@ -377,7 +391,8 @@ impl RenderCache {
         let mut out = vec![0u8; w * self.height as usize];
         let gain = (255.0 * exposure) as f32;
         let taps = self.taps(light, bounce);
-        let mask = light.mask();
+        // Every light of a frame shows the same mask (blurred by its own σ), or none.
+        let mask_taps = light.mask().map(|m| self.mask_taps(m.size()));
         out.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
             let mut rng =
                 SmallRng::seed_from_u64(seed ^ (v as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
@@ -385,30 +400,45 @@ impl RenderCache {
                 let i = v * w + u;
                 let mut radiance = self.ambient[i];
                 let lit = self.offsets[i] as usize..self.offsets[i + 1] as usize;
-                match mask {
-                    None => {
+                let bounced = self.bounce_offsets[i] as usize..self.bounce_offsets[i + 1] as usize;
+                match (light.mask(), &mask_taps) {
+                    (Some(m), Some(mt)) => {
+                        let mt_size = mt.size;
+                        for (t, mt) in taps.lit[lit.clone()].iter().zip(&mt.lit[lit]) {
+                            radiance += t.weight * (light.stripes_at(&t.tap) * m.at(mt));
+                        }
+                        for ((t, mt), s) in taps.bounced[bounced.clone()]
+                            .iter()
+                            .zip(&mt.bounced[bounced.clone()])
+                            .zip(&self.bounces[bounced])
+                        {
+                            let l = &bounce[s.channel as usize];
+                            let stripes = l.stripes_at(&t.tap);
+                            radiance += t.weight
+                                * match l.mask() {
+                                    None => stripes,
+                                    Some(m) if m.size() == mt_size => stripes * m.at(mt),
+                                    Some(m) => stripes * m.sample(s.u, s.v),
+                                };
+                        }
+                    }
+                    _ => {
                         for t in &taps.lit[lit] {
                             radiance += t.weight * light.stripes_at(&t.tap);
                         }
-                    }
-                    Some(m) => {
-                        for (t, s) in taps.lit[lit.clone()].iter().zip(&self.samples[lit]) {
-                            radiance += t.weight * (light.stripes_at(&t.tap) * m.sample(s.u, s.v));
+                        for (t, s) in taps.bounced[bounced.clone()]
+                            .iter()
+                            .zip(&self.bounces[bounced])
+                        {
+                            let l = &bounce[s.channel as usize];
+                            let stripes = l.stripes_at(&t.tap);
+                            radiance += t.weight
+                                * match l.mask() {
+                                    None => stripes,
+                                    Some(m) => stripes * m.sample(s.u, s.v),
+                                };
                         }
                     }
-                }
-                let bounced = self.bounce_offsets[i] as usize..self.bounce_offsets[i + 1] as usize;
-                for (t, s) in taps.bounced[bounced.clone()]
-                    .iter()
-                    .zip(&self.bounces[bounced])
-                {
-                    let l = &bounce[s.channel as usize];
-                    let stripes = l.stripes_at(&t.tap);
-                    radiance += t.weight
-                        * match l.mask() {
-                            None => stripes,
-                            Some(m) => stripes * m.sample(s.u, s.v),
-                        };
                 }
                 let signal = f64::from(gain * radiance);
                 let sigma = (noise * noise + shot_noise * signal).sqrt();
@@ -452,6 +482,35 @@ impl RenderCache {
                 .bounces
                 .par_iter()
                 .map(|s| locate(&bounce[s.channel as usize], s.u, s.v, s.weight))
+                .collect(),
+        });
+        *kept = Some(Arc::clone(&taps));
+        taps
+    }
+
+    /// The samples located on the pixels of a mask of `size`: the last mask's when it had
+    /// this size, else found again (in parallel) and kept.
+    fn mask_taps(&self, size: (usize, usize)) -> Arc<MaskTaps> {
+        let mut kept = self
+            .mask_taps
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        if let Some(t) = kept.as_ref() {
+            if t.size == size {
+                return Arc::clone(t);
+            }
+        }
+        let taps = Arc::new(MaskTaps {
+            size,
+            lit: self
+                .samples
+                .par_iter()
+                .map(|s| MaskTap::locate(size, s.u, s.v))
+                .collect(),
+            bounced: self
+                .bounces
+                .par_iter()
+                .map(|s| MaskTap::locate(size, s.u, s.v))
                 .collect(),
         });
         *kept = Some(Arc::clone(&taps));
@@ -510,8 +569,9 @@ mod tests {
     use crate::sim::Simulator;
 
     /// Each frame, its samples located once for a scan, is the sum the lights give at every
-    /// sample, bit for bit: plain and masked, direct and inter-reflected light, and again after
-    /// a blur that moves the profiles' grids.
+    /// sample, bit for bit: plain and masked (bounce lights under the same mask or a mask of
+    /// another size), direct and inter-reflected light, and again after a blur that moves the
+    /// profiles' grids.
     #[test]
     fn frames_read_every_sample_as_the_lights_give_it() {
         let sim = Simulator::new(crate::sim::tests::small_scene());
@@ -544,27 +604,38 @@ mod tests {
             bit: 3,
             inverse: false,
         };
+        // A bounce light may show a mask of another size than the direct light's.
+        let small = ProjectionMask {
+            width: 64,
+            height: 48,
+            values: (0..64 * 48).map(|i| 0.1 + (i % 5) as f32 / 6.0).collect(),
+        };
         for blur in [0.6f32, 2.5] {
-            for masked in [false, true] {
+            for (masked, bounce_mask) in [
+                (None, None),
+                (Some(&mask), Some(&mask)),
+                (Some(&mask), Some(&small)),
+            ] {
                 for pattern in [Pattern::White, column] {
-                    let lights = |sigma: f32| {
+                    let lights = |sigma: f32, m: Option<&ProjectionMask>| {
                         let l = sim.light_blurred(&layout, pattern, sigma);
-                        if masked {
-                            l.masked(&mask, sigma)
-                        } else {
-                            l
+                        match m {
+                            Some(m) => l.masked(m, sigma),
+                            None => l,
                         }
                     };
-                    let light = lights(blur);
+                    let light = lights(blur, masked);
                     let bounce: Vec<Light> = c
                         .bounce_sigmas
                         .iter()
-                        .map(|s| lights((blur * blur + s * s).sqrt()))
+                        .map(|s| lights((blur * blur + s * s).sqrt(), bounce_mask))
                         .collect();
                     let frame = c.render(&light, &bounce, 1.0, 0.0, 0.0, 0);
                     assert!(
                         frame == direct(&light, &bounce),
-                        "blur {blur}, masked {masked}, {pattern:?}"
+                        "blur {blur}, masks {:?} {:?}, {pattern:?}",
+                        masked.map(|m| m.width),
+                        bounce_mask.map(|m| m.width)
                     );
                 }
             }

@@ -68,7 +68,16 @@ impl Simulator {
 
     /// `mask` blurred by `sigma`, from the cache when the last mask shown was the same.
     fn blurred_mask(&self, mask: &ProjectionMask, sigma: f32) -> Arc<BlurredMask> {
-        let mut cached = self.masks.lock().unwrap_or_else(PoisonError::into_inner);
+        let lock = || self.masks.lock().unwrap_or_else(PoisonError::into_inner);
+        if let Some(c) = lock().as_ref().filter(|c| c.mask == *mask) {
+            if let Some((_, b)) = c.blurred.iter().find(|(s, _)| *s == sigma) {
+                return Arc::clone(b);
+            }
+        }
+        // Blurred (in parallel) outside the lock: a thread outside the rayon pool waiting
+        // there on workers that wait on the lock would never finish.
+        let b = Arc::new(BlurredMask::new(mask, sigma));
+        let mut cached = lock();
         if cached.as_ref().is_some_and(|c| c.mask != *mask) {
             *cached = None;
         }
@@ -76,11 +85,9 @@ impl Simulator {
             mask: mask.clone(),
             blurred: Vec::new(),
         });
-        if let Some((_, b)) = c.blurred.iter().find(|(s, _)| *s == sigma) {
-            return Arc::clone(b);
+        if !c.blurred.iter().any(|(s, _)| *s == sigma) {
+            c.blurred.push((sigma, Arc::clone(&b)));
         }
-        let b = Arc::new(BlurredMask::new(mask, sigma));
-        c.blurred.push((sigma, Arc::clone(&b)));
         b
     }
 

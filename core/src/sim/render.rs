@@ -460,10 +460,16 @@ impl RenderCache {
     fn taps(&self, light: &Light, bounce: &[Light]) -> Arc<FrameTaps> {
         let grid = light.grid();
         let grids: Vec<Grid> = bounce.iter().map(Light::grid).collect();
-        let mut kept = self.taps.lock().unwrap_or_else(PoisonError::into_inner);
-        if let Some(t) = kept.as_ref() {
+        // Not found under the lock: a thread outside the rayon pool waiting there on workers
+        // that wait on the lock would never finish. Two frames may find the same taps at once.
+        let kept = self
+            .taps
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone();
+        if let Some(t) = kept {
             if t.light == grid && t.bounce == grids {
-                return Arc::clone(t);
+                return t;
             }
         }
         let locate = |l: &Light, u: f32, v: f32, weight: f32| match l.locate(u, v) {
@@ -484,20 +490,21 @@ impl RenderCache {
                 .map(|s| locate(&bounce[s.channel as usize], s.u, s.v, s.weight))
                 .collect(),
         });
-        *kept = Some(Arc::clone(&taps));
+        *self.taps.lock().unwrap_or_else(PoisonError::into_inner) = Some(Arc::clone(&taps));
         taps
     }
 
     /// The samples located on the pixels of a mask of `size`: the last mask's when it had
-    /// this size, else found again (in parallel) and kept.
+    /// this size, else found again (in parallel, outside the lock) and kept.
     fn mask_taps(&self, size: (usize, usize)) -> Arc<MaskTaps> {
-        let mut kept = self
+        let kept = self
             .mask_taps
             .lock()
-            .unwrap_or_else(PoisonError::into_inner);
-        if let Some(t) = kept.as_ref() {
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone();
+        if let Some(t) = kept {
             if t.size == size {
-                return Arc::clone(t);
+                return t;
             }
         }
         let taps = Arc::new(MaskTaps {
@@ -513,7 +520,10 @@ impl RenderCache {
                 .map(|s| MaskTap::locate(size, s.u, s.v))
                 .collect(),
         });
-        *kept = Some(Arc::clone(&taps));
+        *self
+            .mask_taps
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner) = Some(Arc::clone(&taps));
         taps
     }
 }

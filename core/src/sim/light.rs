@@ -327,7 +327,7 @@ impl Light {
         self.u.at(t.iu, t.fu) * self.v.at(t.iv, t.fv)
     }
 
-    /// The blurred projection mask at (u, v), if this light has one.
+    /// The blurred projection mask this light shows, if any.
     pub(crate) fn mask(&self) -> Option<&BlurredMask> {
         self.mask.as_deref()
     }
@@ -358,7 +358,7 @@ mod tests {
     fn profiles_match_the_exact_integral_for_any_pattern_and_blur() {
         use rand::{Rng, SeedableRng};
         let exact = |vals: &[f32], sigma: f64, u: f64| -> f64 {
-            let cdf = |x: f64| 0.5 * (1.0 + libm_erf(x / (sigma * std::f64::consts::SQRT_2)));
+            let cdf = |x: f64| 0.5 * (1.0 + erf_series(x / (sigma * std::f64::consts::SQRT_2)));
             vals.iter()
                 .enumerate()
                 .map(|(i, &v)| f64::from(v) * (cdf(i as f64 + 0.5 - u) - cdf(i as f64 - 0.5 - u)))
@@ -391,7 +391,7 @@ mod tests {
     }
 
     /// erf by its series and continued fraction (f64), independent of [`phi`].
-    fn libm_erf(x: f64) -> f64 {
+    fn erf_series(x: f64) -> f64 {
         let a = x.abs();
         let e = if a < 2.5 {
             let mut term = a;

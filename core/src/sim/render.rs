@@ -406,42 +406,32 @@ impl RenderCache {
                 let bounced = self.bounce_offsets[i] as usize..self.bounce_offsets[i + 1] as usize;
                 match (light.mask(), &mask_taps) {
                     (Some(m), Some(mt)) => {
-                        let mt_size = mt.size;
                         for (t, mt) in taps.lit[lit.clone()].iter().zip(&mt.lit[lit]) {
                             radiance += t.weight * (light.stripes_at(&t.tap) * m.at(mt));
-                        }
-                        for ((t, mt), s) in taps.bounced[bounced.clone()]
-                            .iter()
-                            .zip(&mt.bounced[bounced.clone()])
-                            .zip(&self.bounces[bounced])
-                        {
-                            let l = &bounce[s.channel as usize];
-                            let stripes = l.stripes_at(&t.tap);
-                            radiance += t.weight
-                                * match l.mask() {
-                                    None => stripes,
-                                    Some(m) if m.size() == mt_size => stripes * m.at(mt),
-                                    Some(m) => stripes * m.sample(s.u, s.v),
-                                };
                         }
                     }
                     _ => {
                         for t in &taps.lit[lit] {
                             radiance += t.weight * light.stripes_at(&t.tap);
                         }
-                        for (t, s) in taps.bounced[bounced.clone()]
-                            .iter()
-                            .zip(&self.bounces[bounced])
-                        {
-                            let l = &bounce[s.channel as usize];
-                            let stripes = l.stripes_at(&t.tap);
-                            radiance += t.weight
-                                * match l.mask() {
-                                    None => stripes,
-                                    Some(m) => stripes * m.sample(s.u, s.v),
-                                };
-                        }
                     }
+                }
+                for (k, (t, s)) in taps.bounced[bounced.clone()]
+                    .iter()
+                    .zip(&self.bounces[bounced.clone()])
+                    .enumerate()
+                {
+                    let l = &bounce[s.channel as usize];
+                    let stripes = l.stripes_at(&t.tap);
+                    radiance += t.weight
+                        * match (l.mask(), &mask_taps) {
+                            (None, _) => stripes,
+                            // a bounce light's mask located with the direct light's
+                            (Some(m), Some(mt)) if mt.size == m.size() => {
+                                stripes * m.at(&mt.bounced[bounced.start + k])
+                            }
+                            (Some(m), _) => stripes * m.sample(s.u, s.v),
+                        };
                 }
                 let signal = f64::from(gain * radiance);
                 let sigma = (noise * noise + shot_noise * signal).sqrt();
@@ -463,72 +453,68 @@ impl RenderCache {
     fn taps(&self, light: &Light, bounce: &[Light]) -> Arc<FrameTaps> {
         let grid = light.grid();
         let grids: Vec<Grid> = bounce.iter().map(Light::grid).collect();
-        // Not found under the lock: a thread outside the rayon pool waiting there on workers
-        // that wait on the lock would never finish. Two frames may find the same taps at once.
-        let kept = self
-            .taps
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .clone();
-        if let Some(t) = kept {
-            if t.light == grid && t.bounce == grids {
-                return t;
-            }
-        }
         let locate = |l: &Light, u: f32, v: f32, weight: f32| match l.locate(u, v) {
             Some(tap) => Located { tap, weight },
             None => Located::default(),
         };
-        let taps = Arc::new(FrameTaps {
-            light: grid,
-            bounce: grids,
-            lit: self
-                .samples
-                .par_iter()
-                .map(|s| locate(light, s.u, s.v, s.weight))
-                .collect(),
-            bounced: self
-                .bounces
-                .par_iter()
-                .map(|s| locate(&bounce[s.channel as usize], s.u, s.v, s.weight))
-                .collect(),
-        });
-        *self.taps.lock().unwrap_or_else(PoisonError::into_inner) = Some(Arc::clone(&taps));
-        taps
+        kept_or(
+            &self.taps,
+            |t| t.light == grid && t.bounce == grids,
+            || FrameTaps {
+                light: grid,
+                bounce: grids.clone(),
+                lit: self
+                    .samples
+                    .par_iter()
+                    .map(|s| locate(light, s.u, s.v, s.weight))
+                    .collect(),
+                bounced: self
+                    .bounces
+                    .par_iter()
+                    .map(|s| locate(&bounce[s.channel as usize], s.u, s.v, s.weight))
+                    .collect(),
+            },
+        )
     }
 
     /// The samples located on the pixels of a mask of `size`: the last mask's when it had
     /// this size, else found again (in parallel, outside the lock) and kept.
     fn mask_taps(&self, size: (usize, usize)) -> Arc<MaskTaps> {
-        let kept = self
-            .mask_taps
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .clone();
-        if let Some(t) = kept {
-            if t.size == size {
-                return t;
-            }
-        }
-        let taps = Arc::new(MaskTaps {
-            size,
-            lit: self
-                .samples
-                .par_iter()
-                .map(|s| MaskTap::locate(size, s.u, s.v))
-                .collect(),
-            bounced: self
-                .bounces
-                .par_iter()
-                .map(|s| MaskTap::locate(size, s.u, s.v))
-                .collect(),
-        });
-        *self
-            .mask_taps
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner) = Some(Arc::clone(&taps));
-        taps
+        kept_or(
+            &self.mask_taps,
+            |t| t.size == size,
+            || MaskTaps {
+                size,
+                lit: self
+                    .samples
+                    .par_iter()
+                    .map(|s| MaskTap::locate(size, s.u, s.v))
+                    .collect(),
+                bounced: self
+                    .bounces
+                    .par_iter()
+                    .map(|s| MaskTap::locate(size, s.u, s.v))
+                    .collect(),
+            },
+        )
     }
+}
+
+/// The value kept in `slot` when it `fits`, else `make`'s, kept for the next call. `make` runs
+/// outside the lock: a thread outside the rayon pool waiting under it on workers that wait on
+/// the lock would never finish (two calls may then make the same value at once).
+fn kept_or<T>(
+    slot: &Mutex<Option<Arc<T>>>,
+    fits: impl Fn(&T) -> bool,
+    make: impl FnOnce() -> T,
+) -> Arc<T> {
+    let kept = slot.lock().unwrap_or_else(PoisonError::into_inner).clone();
+    if let Some(t) = kept.filter(|t| fits(t)) {
+        return t;
+    }
+    let made = Arc::new(make());
+    *slot.lock().unwrap_or_else(PoisonError::into_inner) = Some(Arc::clone(&made));
+    made
 }
 
 /// How the projector lights a surface point.
@@ -584,7 +570,7 @@ mod tests {
     /// Each frame, its samples located once for a scan, is the sum the lights give at every
     /// sample, bit for bit: plain and masked (bounce lights under the same mask or a mask of
     /// another size), direct and inter-reflected light, and again after a blur that moves the
-    /// profiles' grids.
+    /// profiles' grids (the direct light's and the bounce lights', or the bounce lights' alone).
     #[test]
     fn frames_read_every_sample_as_the_lights_give_it() {
         let sim = Simulator::new(crate::sim::tests::small_scene());
@@ -653,5 +639,13 @@ mod tests {
                 }
             }
         }
+        // Bounce lights blurred anew under the same direct light.
+        let light = sim.light_blurred(&layout, column, 2.5);
+        let bounce: Vec<Light> = c
+            .bounce_sigmas
+            .iter()
+            .map(|s| sim.light_blurred(&layout, column, 3.0 * s))
+            .collect();
+        assert!(c.render(&light, &bounce, 1.0, 0.0, 0.0, 0) == direct(&light, &bounce));
     }
 }

@@ -9,12 +9,13 @@
 //! states each direction; one the data do not pin makes the part `not_measured` rather than a
 //! map at an arbitrary position.
 
-use nalgebra::{Matrix6, SymmetricEigen, Vector3, Vector6};
+use nalgebra::{Matrix6, Point3, SymmetricEigen, UnitQuaternion, Vector3, Vector6};
 use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::mesh::SignedDistance;
 use crate::register::accumulate;
+use crate::register::Pose;
 
 /// Strength below which a direction is not pinned (a tolerance-sized systematic deviation
 /// could move the fit more than 300 tolerances along it: a plane's in-plane motions, a
@@ -212,6 +213,40 @@ pub(super) fn weak_motions(
     (centre, radius, weak)
 }
 
+/// `pose` (CAD from cloud) with its motion from `held` taken out along every motion that
+/// `points` (cloud frame), placed by `pose`, do not pin (strength below
+/// [`UNPINNED_STRENGTH`] within `near` of the surface): along those the part stays where
+/// `held` puts it.
+pub(super) fn held_along_unpinned(
+    points: &[[f64; 3]],
+    cad: &SignedDistance,
+    pose: &Pose,
+    held: &Pose,
+    near: f64,
+) -> Pose {
+    let placed: Vec<[f64; 3]> = points
+        .iter()
+        .map(|p| (pose * Point3::from(*p)).coords.into())
+        .collect();
+    let (centre, radius, free) = weak_motions(&placed, cad, near, UNPINNED_STRENGTH);
+    if free.is_empty() || radius <= 0.0 {
+        return *pose;
+    }
+    // The motion from `held` to `pose` as a turn about the centre (at the RMS radius) and
+    // the centre's shift, in the coordinates the directions are unit vectors of.
+    let delta = pose * held.inverse();
+    let turn = delta.rotation.scaled_axis() * radius;
+    let shift = (delta * Point3::from(centre)).coords - centre;
+    let mut x = Vector6::new(turn.x, turn.y, turn.z, shift.x, shift.y, shift.z);
+    for v in &free {
+        x -= *v * v.dot(&x);
+    }
+    let rotation = UnitQuaternion::from_scaled_axis(Vector3::new(x[0], x[1], x[2]) / radius);
+    let moved = centre + Vector3::new(x[3], x[4], x[5]);
+    let kept = Pose::from_parts((moved - rotation * centre).into(), rotation);
+    kept * held
+}
+
 /// The point-to-plane normal matrix per row of the points of `points` within `near` of the
 /// surface and of `edges`: (surface points used, centre, RMS radius, matrix).
 fn normal_matrix(
@@ -263,4 +298,54 @@ fn normal_matrix(
         ata += weak * rim * weak;
     }
     (on.len(), centre, radius, ata / rows)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::TriangleMesh;
+
+    /// A flat plate pins its height and its tilts, not its slide in its plane nor its turn
+    /// about its normal: held, a fit moved along those three goes back to where the fixture
+    /// holds the part; what the plate pins is kept as fitted.
+    #[test]
+    fn a_plate_stays_where_held_along_what_it_does_not_pin() {
+        let cad = SignedDistance::new(TriangleMesh::height_field(
+            20,
+            20,
+            (-100.0, 100.0),
+            (-80.0, 80.0),
+            |_, _| 0.0,
+        ));
+        let points: Vec<[f64; 3]> = (0..400)
+            .map(|k| {
+                let (i, j) = ((k % 20) as f64, (k / 20) as f64);
+                [-95.0 + 10.0 * i, -75.0 + 7.9 * j, 0.0]
+            })
+            .collect();
+        let held = Pose::new(Vector3::new(1.0, -2.0, 0.5), Vector3::new(0.0, 0.0, 0.01));
+        // fitted: slid 5 and 3 mm, turned 0.5° about the normal, raised 0.2 mm, tilted 0.1°
+        let drift = Pose::new(
+            Vector3::new(5.0, 3.0, 0.2),
+            Vector3::new(0.1f64.to_radians(), 0.0, 0.5f64.to_radians()),
+        );
+        let fitted = drift * held;
+        let kept = held_along_unpinned(&points, &cad, &fitted, &held, 10.0);
+        // (points' positions under the kept pose, the held one and the fitted one)
+        for p in &points {
+            let p = Point3::from(*p);
+            let (k, h, f) = (kept * p, held * p, fitted * p);
+            // in the plane as held
+            assert!(
+                (k.x - h.x).abs() < 0.02 && (k.y - h.y).abs() < 0.02,
+                "{k} vs {h}"
+            );
+            // across it as fitted
+            assert!((k.z - f.z).abs() < 1e-3, "{k} vs {f}");
+        }
+        // a fit the plate pins entirely is kept whole
+        let lifted = Pose::new(Vector3::new(0.0, 0.0, 0.3), Vector3::zeros()) * held;
+        let same = held_along_unpinned(&points, &cad, &lifted, &held, 10.0);
+        assert!((same.translation.vector - lifted.translation.vector).norm() < 1e-9);
+    }
 }

@@ -207,6 +207,15 @@ pub fn inspect(
     } else if params.datums.is_empty() {
         let (pose, mode, frac, it, trusted, rim) =
             trusted_region_fit(&fit, cloud, cad, start, params, &contenders[1..]);
+        // Where the part's pose was given (a cell's fixture) and neither the surface nor the
+        // rim pins a motion, the report says the part lies along it where the fixture holds
+        // it: so it does, whatever the noise and the deformation drew the fit to.
+        let pose = match params.init {
+            Some(held) if rim.as_ref().is_none_or(|r| r.summary.ambiguous.is_some()) => {
+                conditioning::held_along_unpinned(&trusted, cad, &pose, &held, near_surface(params))
+            }
+            _ => pose,
+        };
         // A fit cut short by its budget is not judged.
         crate::budget::check()?;
         // Contending coarse poses that fit the surface as well but not the rim: the rim
@@ -296,6 +305,12 @@ pub fn inspect(
     })
 }
 
+/// The distance from the CAD surface within which a point counts as on it: the deformation a
+/// part may plausibly have, mm.
+fn near_surface(params: &InspectParams) -> f64 {
+    (20.0 * params.tolerance).max(10.0)
+}
+
 /// How much of the CAD the points on its nominal surface cover, and the distance that counts
 /// as on it: within the deformation a part may plausibly have, so that a cloud registered next
 /// to the CAD measures nothing.
@@ -306,7 +321,7 @@ fn surface_coverage(
     params: &InspectParams,
     pose: &Pose,
 ) -> (coverage::Coverage, f64) {
-    let near = (20.0 * params.tolerance).max(10.0);
+    let near = near_surface(params);
     let on_surface: Vec<[f64; 3]> = points
         .iter()
         .zip(deviations)
@@ -862,6 +877,12 @@ fn passes_settled(moved: f64, last_moved: f64, tolerance: f64) -> bool {
 /// the CAD's open boundary, its edges hold the fit on the rim (see [`rim`]). Once this thread's
 /// [`crate::budget`] is spent it stops between rounds and returns the pose it has; the caller's
 /// check then fails the inspection.
+///
+/// Where the rim turns out not to pin the fit (another placement puts as much of the scan's
+/// edge on it), its edges are no evidence of where the part lies, and the pose they drew the
+/// fit to is not kept: the fit is made again from `start` as if the CAD had no rim, so that a
+/// motion the surface does not pin stays where `start` (a cell's fixture pose) put it. The
+/// rim's summary, with the ambiguity, is returned without its edges.
 #[allow(clippy::type_complexity)]
 fn trusted_region_fit(
     pts: &[[f64; 3]],
@@ -870,6 +891,50 @@ fn trusted_region_fit(
     start: Pose,
     params: &InspectParams,
     contenders: &[Pose],
+) -> (
+    Pose,
+    &'static str,
+    f64,
+    usize,
+    Vec<[f64; 3]>,
+    Option<rim::RimFit>,
+) {
+    let fit = trusted_region_passes(pts, cloud, cad, start, params, contenders, true);
+    match fit.5 {
+        Some(r) if r.summary.ambiguous.is_some() && !crate::budget::spent() => {
+            tracing::debug!("trusted-region fit: the rim is ambiguous; fitted again without it");
+            let (pose, mode, frac, total, set, _) =
+                trusted_region_passes(pts, cloud, cad, start, params, contenders, false);
+            let rim = rim::RimFit {
+                edges: Vec::new(),
+                search: None,
+                ..r
+            };
+            (pose, mode, frac, total + fit.3, set, Some(rim))
+        }
+        _ => fit,
+    }
+}
+
+/// Where a rim fit's rivals are searched for: the coarse alignment's runners-up, or, where the
+/// pose was given (a cell's fixture), that pose as a placement reaching no rim.
+fn rivals_from<'a>(contenders: &'a [Pose], params: &InspectParams) -> rim::Rivals<'a> {
+    match params.init {
+        Some(held) if contenders.is_empty() => rim::Rivals::Fixture(held),
+        _ => rim::Rivals::Search(contenders),
+    }
+}
+
+/// [`trusted_region_fit`]'s passes, with the CAD's rim taking part where `with_rim`.
+#[allow(clippy::type_complexity)]
+fn trusted_region_passes(
+    pts: &[[f64; 3]],
+    cloud: &[[f64; 3]],
+    cad: &SignedDistance,
+    start: Pose,
+    params: &InspectParams,
+    contenders: &[Pose],
+    with_rim: bool,
 ) -> (
     Pose,
     &'static str,
@@ -888,7 +953,8 @@ fn trusted_region_fit(
     };
     let cad_rim = rim::CadRim::of(cad);
     let pts_tree = crate::spatial::KdTree::new(pts);
-    let edge_cloud = (!cad_rim.is_empty()).then(|| rim::RimCloud::new(cloud, pts, &pts_tree));
+    let edge_cloud =
+        (with_rim && !cad_rim.is_empty()).then(|| rim::RimCloud::new(cloud, pts, &pts_tree));
     let mut rim_fit: Option<rim::RimFit> = None;
     let mut search: Option<rim::Search> = None;
     let (mut pose, mut total) = fit_to_surface(pts, cad, start, 15, &|_, d| {
@@ -992,7 +1058,7 @@ fn trusted_region_fit(
                 params.tolerance,
                 // where the rim is first found, other placements compete (the basin to refine in)
                 if rim_fit.is_none() {
-                    rim::Rivals::Search(contenders)
+                    rivals_from(contenders, params)
                 } else {
                     rim::Rivals::None
                 },
@@ -1029,7 +1095,7 @@ fn trusted_region_fit(
             {
                 rim::Rivals::Reuse(s)
             }
-            _ => rim::Rivals::Search(contenders),
+            _ => rivals_from(contenders, params),
         };
         rim_fit = rim::register(
             edge_cloud,

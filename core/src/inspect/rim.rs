@@ -38,6 +38,9 @@ const LEVEL: f64 = 5.0;
 const WINDOWS: [f64; 3] = [24.0, 10.0, 4.0];
 /// Edges a fit needs before the rim takes part.
 const MIN_EDGES: usize = 8;
+/// Share of the edges found when the finest window's rounds begin that must still be found
+/// where they end, where the rounds moved the points farther than the band.
+const KEPT_WHILE_SETTLING: f64 = 0.7;
 /// Surface strength (see [`super::Conditioning`]) below which a motion is the rim's to pin:
 /// a tolerance-sized systematic deviation could slide the fit more than 100 tolerances along
 /// it (a dome's, a saddle's or a sheet's slide along itself). A surface that pins a motion
@@ -181,6 +184,10 @@ pub(super) enum Rivals<'a> {
     /// The scan slid along each motion the surface barely pins, and these other starting
     /// poses (the coarse alignment's runners-up) with their own slides.
     Search(&'a [Pose]),
+    /// As [`Rivals::Search`] without runners-up, and with the pose a cell's fixture holds the
+    /// part in as a placement that reaches no rim: a scan whose edges the rim fit carried far
+    /// from it may simply end short of the rim where the fixture holds the part.
+    Fixture(Pose),
     /// Those an earlier search found, each fitted again from where it ended. The slides that
     /// found them were bracketed to a millimetre, so a fit that has since moved by a small
     /// share of the tolerance would start them where they started.
@@ -406,21 +413,33 @@ impl Scene<'_> {
                 .fold(Vector3::zeros(), |a, p| a + Vector3::from(*p))
                 / self.fit_set.len() as f64,
         );
+        // How far a change of pose moves the points: their centroid's shift and the turn at
+        // a metre, mm.
+        let motion = |a: &Pose, b: &Pose| {
+            (a * centroid - b * centroid).norm()
+                + crate::register::rotation_angle_deg(&(a * b.inverse())).to_radians() * 1000.0
+        };
         let all = |_: &[f64; 3], _: f64| 1.0;
         // Every round refits the same points from a pose near the last.
         let hints = no_hints(self.fit_set.len());
         let mut windows: Vec<f64> = windows.iter().map(|d| d.max(self.finest)).collect();
         windows.dedup();
+        // (the pose and the edges found when the finest window's rounds began)
+        let mut finest_start = (pose, 0);
         for (w, &depth) in windows.iter().enumerate() {
+            let finest = w + 1 == windows.len();
             // A wider window only brings the edges within the next one's reach; the last
             // settles to a hundredth of the point spacing.
-            let settled = if w + 1 < windows.len() {
-                0.05 * depth
-            } else {
+            let settled = if finest {
                 (0.01 * self.spacing).max(1e-3)
+            } else {
+                0.05 * depth
             };
-            for _round in 0..8 {
+            for round in 0..8 {
                 let obs = observe_all(self.rim, self.tree, self.pts, &pose, depth);
+                if finest && round == 0 {
+                    finest_start = (pose, obs.len());
+                }
                 if obs.len() < MIN_EDGES {
                     break;
                 }
@@ -440,15 +459,28 @@ impl Scene<'_> {
                 let before = pose;
                 (pose, _) =
                     fit_with_edges_hinted(&self.fit_set, self.cad, pose, 20, &all, &edges, &hints);
-                let moved = (pose * centroid - before * centroid).norm()
-                    + crate::register::rotation_angle_deg(&(pose * before.inverse())).to_radians()
-                        * 1000.0;
-                if moved < settled {
+                if motion(&pose, &before) < settled {
                     break;
                 }
             }
         }
         let obs = observe_all(self.rim, self.tree, self.pts, &pose, self.finest);
+        // The finest window only refines: the wider ones brought every edge it uses within its
+        // reach. Rounds that carry the points farther than the band while the edges they
+        // started from fall away are not settling on those edges but following whichever are
+        // left — a scan ending a few millimetres short of the rim all round, pulled onto it
+        // one side at a time as the other side's edges leave the window: its edges are not
+        // on the rim.
+        if motion(&pose, &finest_start.0) > self.band
+            && (obs.len() as f64) < KEPT_WHILE_SETTLING * finest_start.1 as f64
+        {
+            tracing::debug!(
+                started = finest_start.1,
+                ended = obs.len(),
+                "rim-aware fit: the finest window's rounds walked off their edges"
+            );
+            return None;
+        }
         let offsets: Vec<f64> = obs.iter().map(|o| o.1).collect();
         // At the finest window an edge within a few point spacings of the rim counts, however
         // widely the rest scatter (a wavering coverage limit near the rim).
@@ -568,6 +600,9 @@ impl Scene<'_> {
 /// A placement that matches at least this share of the winner's rim samples matches as much
 /// rim as the winner, within the scatter of a coverage limit near the rim.
 const FLAT_EVIDENCE: f64 = 0.9;
+/// A surface RMS below this share of another placement's fits the surface clearly better (the
+/// noise moves the RMS of placements along a slide by a few per cent).
+const CLEARLY_BETTER: f64 = 0.8;
 
 /// Register `surface` (cloud frame: the trusted points) to `cad` from `pose` together with the
 /// edges `cloud` shows on the CAD's rim; `None` when too few edges are found (the scan
@@ -644,6 +679,10 @@ pub(super) fn register(
                 .collect(),
             search.short.iter().map(|p| scene.surface_fit(*p)).collect(),
         ),
+        Rivals::Fixture(held) => {
+            let all = scene.rivals(&first);
+            (all, vec![scene.surface_fit(held)])
+        }
         Rivals::Search(contenders) => {
             let mut all = scene.rivals(&first);
             // A contender's placement is searched along its own slides as well: it starts
@@ -665,6 +704,23 @@ pub(super) fn register(
     };
     all.push(first);
     all.sort_by_key(|c| std::cmp::Reverse(c.matched().len()));
+    // Among the placements resting on about as much rim as the most (where the rim cannot
+    // choose), one that fits the surface clearly better wins: a nearly symmetric panel turned
+    // the other way fits the rim as well but not the surface.
+    let most = all[0].matched().len() as f64;
+    let rms: Vec<(usize, f64)> = all
+        .par_iter()
+        .enumerate()
+        .filter(|(_, c)| c.matched().len() as f64 >= FLAT_EVIDENCE * most)
+        .map(|(i, c)| (i, scene.surface_rms(&c.pose)))
+        .collect();
+    if let (Some(&(i, r)), Some(&(_, first))) =
+        (rms.iter().min_by(|a, b| a.1.total_cmp(&b.1)), rms.first())
+    {
+        if r < CLEARLY_BETTER * first {
+            all.swap(0, i);
+        }
+    }
     let best = all.swap_remove(0);
     let matched = best.matched();
     // (how far apart the points are placed, the rival's rim, turned by more than 10°)

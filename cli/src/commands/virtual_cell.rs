@@ -321,7 +321,9 @@ pub fn start_rig(rig: &Path, ris: &Path, display: Option<&str>) -> Result<Virtua
             rig.display()
         );
     }
-    let xvfb = Xvfb::start(display, width, height)?;
+    // Ends with this thread: a rig killed with SIGKILL leaves no X server (its cameras watch
+    // their parent themselves).
+    let xvfb = Xvfb::start_tied(display, width, height)?;
     let display = xvfb.display();
     let mut rig_run = VirtualRig {
         xvfb,

@@ -39,6 +39,23 @@ impl Xvfb {
     /// Start a server with one `width` × `height` × 24 screen on `display` (`:N`), or on the
     /// first free display number; returns once it serves its socket (at most 20 s).
     pub fn start(display: Option<&str>, width: u32, height: u32) -> Result<Xvfb, XvfbError> {
+        Xvfb::start_with(display, width, height, false)
+    }
+
+    /// As [`Xvfb::start`], and the server ends (SIGTERM: it removes its lock and socket) when
+    /// the thread that started it ends, however that happens: a process killed with SIGKILL
+    /// runs no drop, and its server would otherwise live on. Start it from a thread that lives
+    /// as long as the server is wanted (a command's main thread).
+    pub fn start_tied(display: Option<&str>, width: u32, height: u32) -> Result<Xvfb, XvfbError> {
+        Xvfb::start_with(display, width, height, true)
+    }
+
+    fn start_with(
+        display: Option<&str>,
+        width: u32,
+        height: u32,
+        tied: bool,
+    ) -> Result<Xvfb, XvfbError> {
         let asked = display
             .map(|d| {
                 d.trim_start_matches(':')
@@ -53,7 +70,7 @@ impl Xvfb {
             // Clears a lock and socket left by a server that is gone; a live one makes the
             // server below exit, which is reported.
             is_free(n);
-            return Xvfb::start_on(n, width, height);
+            return Xvfb::start_on(n, width, height, tied);
         }
         // Two runs can pick the same free number at once, or a number can be unusable in a
         // way its files do not show: the server that loses moves on to the next number.
@@ -63,7 +80,7 @@ impl Xvfb {
             let Some(number) = (from..DISPLAYS.end).find(|&n| is_free(n)) else {
                 break;
             };
-            match Xvfb::start_on(number, width, height) {
+            match Xvfb::start_on(number, width, height, tied) {
                 Ok(x) => return Ok(x),
                 Err(e @ XvfbError::Spawn(_)) => return Err(e),
                 Err(e) => last = e,
@@ -73,9 +90,10 @@ impl Xvfb {
         Err(last)
     }
 
-    fn start_on(number: u32, width: u32, height: u32) -> Result<Xvfb, XvfbError> {
+    fn start_on(number: u32, width: u32, height: u32, tied: bool) -> Result<Xvfb, XvfbError> {
         let display = format!(":{number}");
-        let child = Command::new("Xvfb")
+        let mut command = Command::new("Xvfb");
+        command
             .args([
                 &display,
                 "-screen",
@@ -86,9 +104,11 @@ impl Xvfb {
             ])
             .stdin(Stdio::null())
             .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .map_err(XvfbError::Spawn)?;
+            .stderr(Stdio::null());
+        if tied {
+            end_with_parent(&mut command);
+        }
+        let child = command.spawn().map_err(XvfbError::Spawn)?;
         let mut x = Xvfb { child, number };
         let deadline = Instant::now() + Duration::from_secs(20);
         loop {
@@ -135,6 +155,30 @@ impl Drop for Xvfb {
             let _ = std::fs::remove_file(socket(self.number));
             let _ = std::fs::remove_file(lock(self.number));
         }
+    }
+}
+
+/// Have the kernel send SIGTERM to `command`'s process when the thread spawning it ends. A
+/// parent gone before the request is made fails the spawn instead of leaving the child
+/// untied.
+#[allow(unsafe_code)] // two libc calls between fork and exec: no allocation, no lock
+fn end_with_parent(command: &mut Command) {
+    use std::os::unix::process::CommandExt;
+    let parent = std::process::id() as libc::pid_t;
+    // SAFETY: the closure runs in the forked child before exec and only calls prctl and
+    // getppid, which are async-signal-safe.
+    unsafe {
+        command.pre_exec(move || {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) == -1 {
+                return Err(std::io::Error::last_os_error());
+            }
+            if libc::getppid() != parent {
+                return Err(std::io::Error::other(
+                    "the parent ended before the server started",
+                ));
+            }
+            Ok(())
+        });
     }
 }
 
@@ -187,6 +231,63 @@ mod tests {
         std::fs::write(lock(n), format!("{:>10}\n", std::process::id())).expect("lock");
         assert!(!is_free(n) && lock(n).exists());
         std::fs::remove_file(lock(n)).expect("remove");
+    }
+
+    /// Set in the process [`a_tied_server_ends_with_the_process_that_started_it`] runs as the
+    /// server's parent.
+    const PARENT: &str = "RIS_XVFB_TIED_PARENT";
+
+    /// A server started tied, by a process then killed with SIGKILL (no drop runs), ends and
+    /// leaves no lock. The test runs itself again as that process. Needs `Xvfb`.
+    #[test]
+    fn a_tied_server_ends_with_the_process_that_started_it() {
+        if std::env::var_os(PARENT).is_some() {
+            let x = Xvfb::start_tied(None, 64, 48).expect("Xvfb");
+            println!("server {} {}", x.pid(), x.number);
+            std::thread::sleep(Duration::from_secs(60));
+            return;
+        }
+        use std::io::BufRead as _;
+        let mut parent = Command::new(std::env::current_exe().expect("test binary"))
+            .args([
+                "--exact",
+                "xvfb::tests::a_tied_server_ends_with_the_process_that_started_it",
+                "--nocapture",
+                "--test-threads",
+                "1",
+            ])
+            .env(PARENT, "1")
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("the parent");
+        let out = parent.stdout.take().expect("its output");
+        let line = std::io::BufReader::new(out)
+            .lines()
+            .map_while(Result::ok)
+            .find_map(|l| l.split_once("server ").map(|(_, rest)| rest.to_string()))
+            .expect("the server's pid");
+        let mut words = line.split_whitespace();
+        let pid: u32 = words.next().and_then(|w| w.parse().ok()).expect("pid");
+        let n: u32 = words.next().and_then(|w| w.parse().ok()).expect("display");
+        assert_eq!(lock_pid(n), Some(pid));
+        parent.kill().expect("SIGKILL");
+        parent.wait().expect("reaped");
+        // Gone, or a zombie that no init has reaped yet, and its lock removed by itself.
+        let deadline = Instant::now() + Duration::from_secs(10);
+        let ended = || {
+            std::fs::read_to_string(format!("/proc/{pid}/stat")).map_or(true, |s| {
+                s.rsplit(')')
+                    .next()
+                    .is_some_and(|r| r.trim_start().starts_with('Z'))
+            })
+        };
+        while !ended() || lock(n).exists() {
+            assert!(
+                Instant::now() < deadline,
+                "Xvfb {pid} on :{n} still runs 10 s after its parent was killed"
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
     }
 
     /// A display that its files call free but whose server cannot start (its socket's path is

@@ -883,7 +883,6 @@ fn passes_settled(moved: f64, last_moved: f64, tolerance: f64) -> bool {
 /// fit to is not kept: the fit is made again from `start` as if the CAD had no rim, so that a
 /// motion the surface does not pin stays where `start` (a cell's fixture pose) put it. The
 /// rim's summary, with the ambiguity, is returned without its edges.
-#[allow(clippy::type_complexity)]
 fn trusted_region_fit(
     pts: &[[f64; 3]],
     cloud: &[[f64; 3]],
@@ -891,14 +890,7 @@ fn trusted_region_fit(
     start: Pose,
     params: &InspectParams,
     contenders: &[Pose],
-) -> (
-    Pose,
-    &'static str,
-    f64,
-    usize,
-    Vec<[f64; 3]>,
-    Option<rim::RimFit>,
-) {
+) -> TrustedFit {
     let fit = trusted_region_passes(pts, cloud, cad, start, params, contenders, true);
     match fit.5 {
         Some(r) if r.summary.ambiguous.is_some() && !crate::budget::spent() => {
@@ -916,6 +908,17 @@ fn trusted_region_fit(
     }
 }
 
+/// A trusted-region fit: the pose, the registration mode, the share of the points trusted,
+/// the iterations, the trusted points (cloud frame) and the rim fit.
+type TrustedFit = (
+    Pose,
+    &'static str,
+    f64,
+    usize,
+    Vec<[f64; 3]>,
+    Option<rim::RimFit>,
+);
+
 /// Where a rim fit's rivals are searched for: the coarse alignment's runners-up, or, where the
 /// pose was given (a cell's fixture), that pose as a placement reaching no rim.
 fn rivals_from<'a>(contenders: &'a [Pose], params: &InspectParams) -> rim::Rivals<'a> {
@@ -926,7 +929,6 @@ fn rivals_from<'a>(contenders: &'a [Pose], params: &InspectParams) -> rim::Rival
 }
 
 /// [`trusted_region_fit`]'s passes, with the CAD's rim taking part where `with_rim`.
-#[allow(clippy::type_complexity)]
 fn trusted_region_passes(
     pts: &[[f64; 3]],
     cloud: &[[f64; 3]],
@@ -935,14 +937,7 @@ fn trusted_region_passes(
     params: &InspectParams,
     contenders: &[Pose],
     with_rim: bool,
-) -> (
-    Pose,
-    &'static str,
-    f64,
-    usize,
-    Vec<[f64; 3]>,
-    Option<rim::RimFit>,
-) {
+) -> TrustedFit {
     let clock = std::time::Instant::now();
     let lap = |step: &str, iterations: usize| {
         tracing::debug!(

@@ -209,10 +209,11 @@ pub fn inspect(
             trusted_region_fit(&fit, cloud, cad, start, params, &contenders[1..]);
         // Where the part's pose was given (a cell's fixture) and neither the surface nor the
         // rim pins a motion, the report says the part lies along it where the fixture holds
-        // it: so it does, whatever the noise and the deformation drew the fit to.
+        // it: so it does, whatever the noise and the deformation drew the fit to. (Judged on
+        // the points the report's conditioning judges.)
         let pose = match params.init {
             Some(held) if rim.as_ref().is_none_or(|r| r.summary.ambiguous.is_some()) => {
-                conditioning::held_along_unpinned(&trusted, cad, &pose, &held, near_surface(params))
+                conditioning::held_along_unpinned(&fit, cad, &pose, &held, near_surface(params))
             }
             _ => pose,
         };

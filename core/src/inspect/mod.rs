@@ -892,12 +892,13 @@ fn trusted_region_fit(
     params: &InspectParams,
     contenders: &[Pose],
 ) -> TrustedFit {
-    let fit = trusted_region_passes(pts, cloud, cad, start, params, contenders, true);
+    let cad_rim = rim::CadRim::of(cad);
+    let fit = trusted_region_passes(pts, cloud, cad, start, params, contenders, Some(&cad_rim));
     match fit.5 {
         Some(r) if r.summary.ambiguous.is_some() && !crate::budget::spent() => {
             tracing::debug!("trusted-region fit: the rim is ambiguous; fitted again without it");
             let (pose, mode, frac, total, set, _) =
-                trusted_region_passes(pts, cloud, cad, start, params, contenders, false);
+                trusted_region_passes(pts, cloud, cad, start, params, contenders, None);
             let rim = rim::RimFit {
                 edges: Vec::new(),
                 search: None,
@@ -929,7 +930,8 @@ fn rivals_from<'a>(contenders: &'a [Pose], params: &InspectParams) -> rim::Rival
     }
 }
 
-/// [`trusted_region_fit`]'s passes, with the CAD's rim taking part where `with_rim`.
+/// [`trusted_region_fit`]'s passes, with the CAD's rim (`cad_rim`, sampled once for both
+/// fits) taking part where it is given and not empty.
 fn trusted_region_passes(
     pts: &[[f64; 3]],
     cloud: &[[f64; 3]],
@@ -937,7 +939,7 @@ fn trusted_region_passes(
     start: Pose,
     params: &InspectParams,
     contenders: &[Pose],
-    with_rim: bool,
+    cad_rim: Option<&rim::CadRim>,
 ) -> TrustedFit {
     let clock = std::time::Instant::now();
     let lap = |step: &str, iterations: usize| {
@@ -947,10 +949,11 @@ fn trusted_region_passes(
             "trusted-region fit: {step}"
         )
     };
-    let cad_rim = rim::CadRim::of(cad);
     let pts_tree = crate::spatial::KdTree::new(pts);
-    let edge_cloud =
-        (with_rim && !cad_rim.is_empty()).then(|| rim::RimCloud::new(cloud, pts, &pts_tree));
+    // (the CAD's rim and the cloud whose edges are looked for on it)
+    let edges_on_rim = cad_rim
+        .filter(|r| !r.is_empty())
+        .map(|r| (r, rim::RimCloud::new(cloud, pts, &pts_tree)));
     let mut rim_fit: Option<rim::RimFit> = None;
     let mut search: Option<rim::Search> = None;
     let (mut pose, mut total) = fit_to_surface(pts, cad, start, 15, &|_, d| {
@@ -1044,12 +1047,12 @@ fn trusted_region_passes(
             pose = p;
         }
         lap("consensus", total);
-        if let Some(r) = edge_cloud.as_ref().and_then(|edge_cloud| {
+        if let Some(r) = edges_on_rim.as_ref().and_then(|(cad_rim, edge_cloud)| {
             rim::register(
                 edge_cloud,
                 &selected(pts, &trusted),
                 cad,
-                &cad_rim,
+                cad_rim,
                 pose,
                 params.tolerance,
                 // where the rim is first found, other placements compete (the basin to refine in)
@@ -1083,7 +1086,9 @@ fn trusted_region_passes(
     // placements it found are fitted again instead. With runners-up the search is made again:
     // fitted again from where the early search left it, a symmetric dome's turned runner-up
     // was judged a rival that the fresh search did not find (the rim panels' family).
-    if let (Some(_), Some(edge_cloud), false) = (&rim_fit, &edge_cloud, crate::budget::spent()) {
+    if let (Some(_), Some((cad_rim, edge_cloud)), false) =
+        (&rim_fit, &edges_on_rim, crate::budget::spent())
+    {
         let rivals = match &search {
             Some(s)
                 if contenders.is_empty()
@@ -1097,7 +1102,7 @@ fn trusted_region_passes(
             edge_cloud,
             &set,
             cad,
-            &cad_rim,
+            cad_rim,
             pose,
             params.tolerance,
             rivals,

@@ -166,6 +166,15 @@ pub(super) fn worker_loop(rx: mpsc::Receiver<Job>, mut cell: Cell, ctx: &WorkerC
     }
 }
 
+/// How a scan job ended: the terminal state goes out only after health says what the scan
+/// left behind (a lost camera reconnecting, the last scan, the last error), so a client that
+/// sees `failed` or `done` and asks for health reads the cell as the scan left it.
+enum Ending {
+    /// `done` with the scan's figures, as JSON.
+    Done(String),
+    Failed(String),
+}
+
 /// Run one scan job on the worker: a panic fails that job only.
 fn run_one(job: Job, cell: &mut Cell, ctx: &WorkerContext, report_pairs: &dyn Fn(&Cell)) {
     if let Ok(mut s) = ctx.status.lock() {
@@ -176,33 +185,33 @@ fn run_one(job: Job, cell: &mut Cell, ctx: &WorkerContext, report_pairs: &dyn Fn
     // A panic anywhere in a job fails that job; the worker goes on with the next.
     let ran = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run_job(job, cell, ctx)));
     report_pairs(cell);
-    if let Err(panic) = ran {
+    let ending = ran.unwrap_or_else(|panic| {
         let reason = format!("internal error: {}", scan::panic_message(&*panic));
         tracing::error!(scan = %id, %reason, "scan panicked");
-        publish(
-            ctx.session,
-            ctx.cell,
-            &id,
-            &ScanState::Failed {
-                reason: reason.clone(),
-            },
-        );
-        if let Ok(mut s) = ctx.status.lock() {
-            s.last_error = Some(format!("{id}: {reason}"));
-        }
         let partial = ctx.data_dir.join("scans").join(format!("{id}.partial"));
         if partial.exists() {
             let _ = std::fs::remove_dir_all(&partial);
         }
-    }
+        Ending::Failed(reason)
+    });
     if let Ok(mut s) = ctx.status.lock() {
+        match &ending {
+            Ending::Done(_) => s.last_scan = Some(id.clone()),
+            Ending::Failed(reason) => s.last_error = Some(format!("{id}: {reason}")),
+        }
         if s.state == "scanning" {
             s.state = "ready".into();
         }
     }
+    match ending {
+        Ending::Done(json) => publish_json(ctx.session, ctx.cell, &id, json),
+        Ending::Failed(reason) => {
+            publish(ctx.session, ctx.cell, &id, &ScanState::Failed { reason })
+        }
+    }
 }
 
-fn run_job(mut job: Job, cell_: &mut Cell, ctx: &WorkerContext) {
+fn run_job(mut job: Job, cell_: &mut Cell, ctx: &WorkerContext) -> Ending {
     // Every inspection report carries what the cell's verification says (never verified,
     // failed, stale, drifting).
     if let Some(ledger) = ctx.ledger {
@@ -213,15 +222,7 @@ fn run_job(mut job: Job, cell_: &mut Cell, ctx: &WorkerContext) {
     let id = job.scan_id;
     let (session, cell) = (ctx.session, ctx.cell);
     if ctx.stopping.load(Ordering::SeqCst) {
-        publish(
-            session,
-            cell,
-            &id,
-            &ScanState::Failed {
-                reason: "risd is stopping".into(),
-            },
-        );
-        return;
+        return Ending::Failed("risd is stopping".into());
     }
     let result = cell_.scan(
         &job.scan,
@@ -230,7 +231,8 @@ fn run_job(mut job: Job, cell_: &mut Cell, ctx: &WorkerContext) {
         &|| ctx.stopping.load(Ordering::SeqCst),
         &|s| {
             ctx.heartbeat.beat();
-            if !matches!(s, ScanState::Done) {
+            // The ending goes out from `run_one`, after health.
+            if !matches!(s, ScanState::Done | ScanState::Failed { .. }) {
                 publish(session, cell, &id, s);
             }
         },
@@ -257,14 +259,7 @@ fn run_job(mut job: Job, cell_: &mut Cell, ctx: &WorkerContext) {
             )),
             _ => None,
         };
-        match measured.transpose() {
-            Ok(position) => Ok((report, dir, position)),
-            Err(e) => {
-                let reason = format!("{e:#}");
-                publish(session, cell, &id, &ScanState::Failed { reason });
-                Err(e)
-            }
-        }
+        measured.transpose().map(|position| (report, dir, position))
     });
     match result {
         Ok((report, dir, position)) => {
@@ -300,18 +295,12 @@ fn run_job(mut job: Job, cell_: &mut Cell, ctx: &WorkerContext) {
                 "total": report.total,
                 "verification": position,
             });
-            publish_json(session, cell, &id, done.to_string());
-            if let Ok(mut s) = ctx.status.lock() {
-                s.last_scan = Some(id.clone());
-            }
             tracing::info!(scan = %id, points = report.merged_points, "scan done");
+            Ending::Done(done.to_string())
         }
         Err(e) => {
-            // scan::run has published `failed` with the reason.
             tracing::warn!(scan = %id, error = %format!("{e:#}"), "scan failed");
-            if let Ok(mut s) = ctx.status.lock() {
-                s.last_error = Some(format!("{id}: {e:#}"));
-            }
+            Ending::Failed(format!("{e:#}"))
         }
     }
 }

@@ -182,6 +182,11 @@ impl Bvh {
         (&self.order[range.clone()], &self.corners[range])
     }
 
+    /// The triangles in leaf order, and their corners.
+    pub(super) fn leaf_order(&self) -> (&[u32], &[[Vec3; 3]]) {
+        (&self.order, &self.corners)
+    }
+
     /// Axis-aligned bounds of the whole mesh.
     pub fn bounds(&self) -> ([f64; 3], [f64; 3]) {
         self.bounds

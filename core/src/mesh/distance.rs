@@ -7,6 +7,7 @@ use crate::spatial::IntMap;
 
 use rayon::prelude::*;
 
+use super::cells::{Cells, Near};
 use super::{Bvh, TriangleMesh};
 use crate::geometry::Vec3;
 
@@ -21,6 +22,8 @@ enum Feature {
 /// A mesh prepared for signed-distance queries.
 pub struct SignedDistance {
     bvh: Bvh,
+    /// Cells answering queries near the surface (`None` where the triangles' sizes give none).
+    cells: Option<Cells>,
     face_normals: Vec<Vec3>,
     vertex_normals: Vec<Vec3>,
     /// Summed face normals of each edge and how many triangles share it (1: open boundary).
@@ -90,8 +93,10 @@ impl SignedDistance {
                 boundary_vertex[b as usize] = true;
             }
         }
+        let bvh = Bvh::new(mesh);
         SignedDistance {
-            bvh: Bvh::new(mesh),
+            cells: Cells::new(&bvh),
+            bvh,
             face_normals,
             vertex_normals,
             edge_normals,
@@ -123,7 +128,15 @@ impl SignedDistance {
     /// a point that moved a little, or a neighbouring point's): the same result, found faster
     /// when the hint is close. `u32::MAX` or an index out of range is no hint.
     pub fn query_near(&self, p: &Vec3, hint: u32) -> Option<Closest> {
-        let (tri, point, feature, d2) = self.bvh.closest(p, hint, closest_on_triangle)?;
+        let near = match &self.cells {
+            Some(cells) => cells.near(&self.bvh, p, hint, closest_on_triangle),
+            None => Near::Nothing,
+        };
+        let (tri, point, feature, d2) = match near {
+            Near::Certain(found) => found,
+            Near::Bound(tri) => self.bvh.closest(p, tri, closest_on_triangle)?,
+            Near::Nothing => self.bvh.closest(p, hint, closest_on_triangle)?,
+        };
         let mesh = self.bvh.mesh();
         let ids = mesh.triangles[tri as usize];
         let (normal, beyond_boundary) = match feature {
@@ -467,6 +480,97 @@ mod tests {
             ties += around.len() - 1;
         }
         assert!(ties > 500, "{ties} ties");
+    }
+
+    /// A mesh of two sheets 0.3 mm apart (a thin plate's faces, the lower one facing down),
+    /// beside a fine bumpy grid and two large triangles: crowded, empty and certain cells.
+    fn uneven_mesh() -> TriangleMesh {
+        let mut m = TriangleMesh::height_field(60, 40, (-60.0, 60.0), (-40.0, 40.0), |x, y| {
+            3.0 * (x / 9.0).sin() * (y / 7.0).cos()
+        });
+        let mut add = |other: TriangleMesh, flip: bool| {
+            let base = m.vertices.len() as u32;
+            m.vertices.extend(other.vertices);
+            m.triangles.extend(other.triangles.iter().map(|t| {
+                let t = t.map(|i| i + base);
+                if flip {
+                    [t[0], t[2], t[1]]
+                } else {
+                    t
+                }
+            }));
+        };
+        add(
+            TriangleMesh::height_field(30, 30, (100.0, 160.0), (-30.0, 30.0), |_, _| 0.0),
+            false,
+        );
+        add(
+            TriangleMesh::height_field(30, 30, (100.0, 160.0), (-30.0, 30.0), |_, _| -0.3),
+            true,
+        );
+        add(
+            TriangleMesh::height_field(2, 2, (-200.0, 200.0), (60.0, 300.0), |x, _| 0.1 * x),
+            false,
+        );
+        m
+    }
+
+    #[test]
+    fn cells_answer_near_the_surface_exactly_as_the_hierarchy_does() {
+        let fine = TriangleMesh::height_field(120, 90, (-300.0, 300.0), (-200.0, 200.0), |x, y| {
+            -(x * x / 5000.0 + y * y / 8000.0)
+        });
+        for (name, mesh) in [
+            ("panel", fine),
+            ("sphere", sphere(50.0, 24)),
+            ("uneven", uneven_mesh()),
+        ] {
+            let sd = SignedDistance::new(mesh.clone());
+            let cells = sd.cells.as_ref().expect("cells");
+            let mut rng = crate::testing::Rng(11);
+            let (mut certain, mut near_surface) = (0, 0);
+            for i in 0..20_000 {
+                // a point on a random triangle, moved along its normal by up to 0.01–30 mm
+                let t = (rng.range(0.0, 1.0) * mesh.triangles.len() as f64) as usize;
+                let t = t.min(mesh.triangles.len() - 1);
+                let [a, b, c] = mesh.corners(t);
+                let (u, v) = (rng.range(0.0, 1.0), rng.range(0.0, 1.0));
+                let (u, v) = if u + v > 1.0 {
+                    (1.0 - u, 1.0 - v)
+                } else {
+                    (u, v)
+                };
+                let scale = [0.01, 0.1, 1.0, 30.0][i % 4];
+                let off = sd.face_normals[t] * rng.range(-1.0, 1.0) * scale;
+                let p = a + (b - a) * u + (c - a) * v + off;
+                let hint = [u32::MAX, t as u32, (t as u32) ^ 1][i % 3];
+                let truth = sd
+                    .bvh
+                    .closest(&p, u32::MAX, closest_on_triangle)
+                    .expect("mesh");
+                if scale <= 0.1 {
+                    near_surface += 1;
+                }
+                match cells.near(&sd.bvh, &p, hint, closest_on_triangle) {
+                    Near::Certain(got) => {
+                        certain += usize::from(scale <= 0.1);
+                        assert_eq!(
+                            (got.0, got.1, got.2, got.3.to_bits()),
+                            (truth.0, truth.1, truth.2, truth.3.to_bits()),
+                            "{name}: {p:?}"
+                        );
+                    }
+                    Near::Bound(_) | Near::Nothing => {}
+                }
+                let q = sd.query_near(&p, hint).expect("mesh");
+                assert_eq!((q.triangle, q.point), (truth.0, truth.1), "{name}: {p:?}");
+            }
+            // Most points within 0.1 mm of the surface are answered by their cell.
+            assert!(
+                certain * 10 >= near_surface * 6,
+                "{name}: {certain} of {near_surface} near the surface"
+            );
+        }
     }
 
     #[test]

@@ -2,6 +2,7 @@
 //! bounding-volume hierarchy for ray casts and signed point-to-mesh distances.
 
 mod bvh;
+mod cells;
 mod distance;
 mod obj;
 mod ply;

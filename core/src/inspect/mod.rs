@@ -893,20 +893,32 @@ fn trusted_region_fit(
     contenders: &[Pose],
 ) -> TrustedFit {
     let cad_rim = rim::CadRim::of(cad);
-    let fit = trusted_region_passes(pts, cloud, cad, start, params, contenders, Some(&cad_rim));
-    match fit.5 {
-        Some(r) if r.summary.ambiguous.is_some() && !crate::budget::spent() => {
+    let (fit, fork) = trusted_region_passes(
+        pts,
+        cloud,
+        cad,
+        start,
+        params,
+        contenders,
+        Some(&cad_rim),
+        None,
+    );
+    match (fit.5, fork) {
+        (Some(r), Some(fork)) if r.summary.ambiguous.is_some() && !crate::budget::spent() => {
             tracing::debug!("trusted-region fit: the rim is ambiguous; fitted again without it");
-            let (pose, mode, frac, total, set, _) =
-                trusted_region_passes(pts, cloud, cad, start, params, contenders, None);
+            // (the passes without the rim are those with it up to where the rim first took
+            // part: they go on from there)
+            let shared = fork.total;
+            let ((pose, mode, frac, total, set, _), _) =
+                trusted_region_passes(pts, cloud, cad, start, params, contenders, None, Some(fork));
             let rim = rim::RimFit {
                 edges: Vec::new(),
                 search: None,
                 ..r
             };
-            (pose, mode, frac, total + fit.3, set, Some(rim))
+            (pose, mode, frac, fit.3 + total - shared, set, Some(rim))
         }
-        _ => fit,
+        (rim_fit, _) => (fit.0, fit.1, fit.2, fit.3, fit.4, rim_fit),
     }
 }
 
@@ -930,8 +942,87 @@ fn rivals_from<'a>(contenders: &'a [Pose], params: &InspectParams) -> rim::Rival
     }
 }
 
+/// The state of [`trusted_region_passes`] where the rim first took part (after that pass's
+/// consensus step, before its rim step): up to there the passes with and without the rim are
+/// the same, so a fit without the rim goes on from here.
+#[derive(Clone)]
+struct Fork {
+    pass: usize,
+    /// The pose the pass began from, and the pose and iterations after its consensus step.
+    before: Pose,
+    pose: Pose,
+    total: usize,
+    trusted: Vec<bool>,
+    noise: f64,
+    last_moved: f64,
+}
+
+/// One pass of [`trusted_region_passes`] up to its rim step: seeds at the current pose, the
+/// trusted set annealed onto them (with the rim's edges of `rim_fit`), and the tiles a rigid
+/// motion puts back (`consensus`). Updates the pose, the iteration count and the trusted set.
+fn pass_to_consensus(
+    pts: &[[f64; 3]],
+    cad: &SignedDistance,
+    params: &InspectParams,
+    (noise, floor): (f64, f64),
+    rim_fit: Option<&rim::RimFit>,
+    (pose, total, trusted): (&mut Pose, &mut usize, &mut Vec<bool>),
+    lap: &dyn Fn(&str, usize),
+) {
+    let seeds = flat_seeds(pts, cad, pose);
+    lap("seeds", *total);
+    *trusted = seeds.clone();
+    let mut thr = 0.5 * params.tolerance;
+    for _round in 0..40 {
+        if crate::budget::spent() {
+            break;
+        }
+        let dev = cad.query_all(&to_cad(pts, pose));
+        let current: Vec<f64> = dev
+            .iter()
+            .zip(trusted.iter())
+            .filter(|(d, t)| **t && d.is_finite())
+            .map(|(d, _)| *d)
+            .collect();
+        let med = median(&current);
+        // Only seeds (flat neighbourhoods) may be trusted: growing into bent regions
+        // would let the deformation's tails pull the fit.
+        let next: Vec<bool> = dev
+            .iter()
+            .zip(&seeds)
+            .map(|(d, s)| *s && d.is_finite() && (d - med).abs() <= thr)
+            .collect();
+        let changed = next
+            .iter()
+            .zip(trusted.iter())
+            .filter(|(a, b)| a != b)
+            .count();
+        if next.iter().filter(|t| **t).count() < 10 {
+            break;
+        }
+        *trusted = next;
+        let set = selected(pts, trusted);
+        let edges = rim_fit.map_or(&[][..], |r| &r.edges[..]);
+        let (p, it) = fit_with_edges(&set, cad, *pose, params.max_iterations, &|_, _| 1.0, edges);
+        *pose = p;
+        *total += it;
+        if thr <= floor && changed * 1000 < pts.len() {
+            break;
+        }
+        thr = (thr * 0.7).max(floor);
+    }
+    lap("annealed", *total);
+    if let Some((mask, p)) = consensus::admit(pts, trusted, cad, pose, noise) {
+        *trusted = mask;
+        *pose = p;
+    }
+    lap("consensus", *total);
+}
+
 /// [`trusted_region_fit`]'s passes, with the CAD's rim (`cad_rim`, sampled once for both
-/// fits) taking part where it is given and not empty.
+/// fits) taking part where it is given and not empty; from `resume` (a [`Fork`] of passes
+/// with the rim) when given. Returns the fit and, where the rim took part, where it did.
+#[allow(clippy::too_many_arguments)]
 fn trusted_region_passes(
     pts: &[[f64; 3]],
     cloud: &[[f64; 3]],
@@ -940,7 +1031,8 @@ fn trusted_region_passes(
     params: &InspectParams,
     contenders: &[Pose],
     cad_rim: Option<&rim::CadRim>,
-) -> TrustedFit {
+    resume: Option<Fork>,
+) -> (TrustedFit, Option<Fork>) {
     let clock = std::time::Instant::now();
     let lap = |step: &str, iterations: usize| {
         tracing::debug!(
@@ -956,16 +1048,24 @@ fn trusted_region_passes(
         .map(|r| (r, rim::RimCloud::new(cloud, pts, &pts_tree)));
     let mut rim_fit: Option<rim::RimFit> = None;
     let mut search: Option<rim::Search> = None;
-    let (mut pose, mut total) = fit_to_surface(pts, cad, start, 15, &|_, d| {
-        if d.abs() < 5.0 {
-            1.0
-        } else {
-            0.0
+    let mut fork: Option<Fork> = None;
+    let (mut pose, mut total, noise) = match &resume {
+        Some(f) => (f.pose, f.total, f.noise),
+        None => {
+            let (pose, total) = fit_to_surface(pts, cad, start, 15, &|_, d| {
+                if d.abs() < 5.0 {
+                    1.0
+                } else {
+                    0.0
+                }
+            });
+            // Measurement noise from the local roughness of the deviation field (a point
+            // against the mean of its neighbours): smooth deformation and misalignment cancel
+            // there, noise does not.
+            let noise = local_noise(pts, &pts_tree, &cad.query_all(&to_cad(pts, &pose)));
+            (pose, total, noise)
         }
-    });
-    // Measurement noise from the local roughness of the deviation field (a point against the
-    // mean of its neighbours): smooth deformation and misalignment cancel there, noise does not.
-    let noise = local_noise(pts, &pts_tree, &cad.query_all(&to_cad(pts, &pose)));
+    };
     // The threshold anneals from half the tolerance down to three noise sigmas, so the trusted
     // set contracts onto the undeformed majority instead of settling on a compromise.
     let floor = (3.0 * noise).max(0.01);
@@ -996,57 +1096,43 @@ fn trusted_region_passes(
             + crate::register::rotation_angle_deg(&(a * b.inverse())).to_radians() * radius
     };
     lap("rough fit and noise", total);
-    let mut last_moved = f64::INFINITY;
-    for _pass in 0..4 {
+    let mut last_moved = resume.as_ref().map_or(f64::INFINITY, |f| f.last_moved);
+    let mut resume = resume;
+    for pass in resume.as_ref().map_or(0, |f| f.pass)..4 {
         if crate::budget::spent() {
             break;
         }
-        let before = pose;
-        let seeds = flat_seeds(pts, cad, &pose);
-        lap("seeds", total);
-        trusted = seeds.clone();
-        let mut thr = 0.5 * params.tolerance;
-        for _round in 0..40 {
-            if crate::budget::spent() {
-                break;
+        // (a resumed pass goes on after its consensus step, where the rim would take part)
+        let before = match resume.take() {
+            Some(f) => {
+                trusted = f.trusted;
+                f.before
             }
-            let dev = cad.query_all(&to_cad(pts, &pose));
-            let current: Vec<f64> = dev
-                .iter()
-                .zip(&trusted)
-                .filter(|(d, t)| **t && d.is_finite())
-                .map(|(d, _)| *d)
-                .collect();
-            let med = median(&current);
-            // Only seeds (flat neighbourhoods) may be trusted: growing into bent regions
-            // would let the deformation's tails pull the fit.
-            let next: Vec<bool> = dev
-                .iter()
-                .zip(&seeds)
-                .map(|(d, s)| *s && d.is_finite() && (d - med).abs() <= thr)
-                .collect();
-            let changed = next.iter().zip(&trusted).filter(|(a, b)| a != b).count();
-            if next.iter().filter(|t| **t).count() < 10 {
-                break;
+            None => {
+                let before = pose;
+                pass_to_consensus(
+                    pts,
+                    cad,
+                    params,
+                    (noise, floor),
+                    rim_fit.as_ref(),
+                    (&mut pose, &mut total, &mut trusted),
+                    &lap,
+                );
+                before
             }
-            trusted = next;
-            let set = selected(pts, &trusted);
-            let edges = rim_fit.as_ref().map_or(&[][..], |r| &r.edges[..]);
-            let (p, it) =
-                fit_with_edges(&set, cad, pose, params.max_iterations, &|_, _| 1.0, edges);
-            pose = p;
-            total += it;
-            if thr <= floor && changed * 1000 < pts.len() {
-                break;
-            }
-            thr = (thr * 0.7).max(floor);
+        };
+        if rim_fit.is_none() && edges_on_rim.is_some() {
+            fork = Some(Fork {
+                pass,
+                before,
+                pose,
+                total,
+                trusted: trusted.clone(),
+                noise,
+                last_moved,
+            });
         }
-        lap("annealed", total);
-        if let Some((mask, p)) = consensus::admit(pts, &trusted, cad, &pose, noise) {
-            trusted = mask;
-            pose = p;
-        }
-        lap("consensus", total);
         if let Some(r) = edges_on_rim.as_ref().and_then(|(cad_rim, edge_cloud)| {
             rim::register(
                 edge_cloud,
@@ -1118,7 +1204,7 @@ fn trusted_region_passes(
     } else {
         "trusted-region"
     };
-    (pose, mode, frac, total, set, rim_fit)
+    ((pose, mode, frac, total, set, rim_fit), fork)
 }
 
 #[cfg(test)]

@@ -648,7 +648,7 @@ fn fit_with_edges(
     edges: &[rim::Edge],
 ) -> (Pose, usize) {
     let hints = no_hints(pts.len());
-    fit_with_edges_hinted(pts, cad, pose, max_iter, weight, edges, &hints)
+    fit_with_edges_hinted(pts, cad, pose, (max_iter, CONVERGED_MM), weight, edges, &hints)
 }
 
 /// One closest-triangle hint per point of a fit, none known yet.
@@ -658,12 +658,14 @@ fn no_hints(n: usize) -> Vec<AtomicU32> {
 
 /// [`fit_with_edges`] whose closest-point queries start from `hints` (one per point: its
 /// closest triangle in an earlier fit of the same points from a nearby pose) and leave their
-/// answers there. The hints make the queries faster, never different.
+/// answers there. The hints make the queries faster, never different. The fit stops after
+/// `max_iter` steps or at a step that moves no point within two RMS radii of the centroid
+/// farther than `converged` mm.
 fn fit_with_edges_hinted(
     pts: &[[f64; 3]],
     cad: &SignedDistance,
     mut pose: Pose,
-    max_iter: usize,
+    (max_iter, converged): (usize, f64),
     weight: &(dyn Fn(&[f64; 3], f64) -> f64 + Sync),
     edges: &[rim::Edge],
     hints: &[AtomicU32],
@@ -747,7 +749,7 @@ fn fit_with_edges_hinted(
         let delta = Pose::from_parts((centre - rot * centre + t).into(), rot);
         pose = delta * pose;
         // Converged when no point within two radii moves by more than 10 nm.
-        if t.norm() + 2.0 * radius * omega.norm() < CONVERGED_MM {
+        if t.norm() + 2.0 * radius * omega.norm() < converged {
             break;
         }
         trail.push(pose);

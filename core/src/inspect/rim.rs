@@ -435,6 +435,13 @@ impl Scene<'_> {
             } else {
                 0.05 * depth
             };
+            // A round's fit need go no further than a tenth of what ends the rounds: the next
+            // round starts from its edges again. The finest window's rounds converge fully.
+            let converged = if finest {
+                super::CONVERGED_MM
+            } else {
+                0.1 * settled
+            };
             for round in 0..8 {
                 let obs = observe_all(self.rim, self.tree, self.pts, &pose, depth);
                 if finest && round == 0 {
@@ -458,7 +465,15 @@ impl Scene<'_> {
                 }
                 let before = pose;
                 (pose, _) =
-                    fit_with_edges_hinted(&self.fit_set, self.cad, pose, 20, &all, &edges, &hints);
+                    fit_with_edges_hinted(
+                        &self.fit_set,
+                        self.cad,
+                        pose,
+                        (20, converged),
+                        &all,
+                        &edges,
+                        &hints,
+                    );
                 if motion(&pose, &before) < settled {
                     break;
                 }

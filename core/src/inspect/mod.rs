@@ -648,7 +648,15 @@ fn fit_with_edges(
     edges: &[rim::Edge],
 ) -> (Pose, usize) {
     let hints = no_hints(pts.len());
-    fit_with_edges_hinted(pts, cad, pose, (max_iter, CONVERGED_MM), weight, edges, &hints)
+    fit_with_edges_hinted(
+        pts,
+        cad,
+        pose,
+        (max_iter, CONVERGED_MM),
+        weight,
+        edges,
+        &hints,
+    )
 }
 
 /// One closest-triangle hint per point of a fit, none known yet.

@@ -464,16 +464,15 @@ impl Scene<'_> {
                     break;
                 }
                 let before = pose;
-                (pose, _) =
-                    fit_with_edges_hinted(
-                        &self.fit_set,
-                        self.cad,
-                        pose,
-                        (20, converged),
-                        &all,
-                        &edges,
-                        &hints,
-                    );
+                (pose, _) = fit_with_edges_hinted(
+                    &self.fit_set,
+                    self.cad,
+                    pose,
+                    (20, converged),
+                    &all,
+                    &edges,
+                    &hints,
+                );
                 if motion(&pose, &before) < settled {
                     break;
                 }

@@ -5,8 +5,9 @@
 //! A cell answers only when its answer is certain: every triangle within the found distance
 //! of the point lies in the ball of that radius, and when the ball is inside the cell every
 //! such triangle is on the cell's list. Otherwise (the ball crosses the cell's faces, the cell
-//! is empty or crowded, the point is outside the grid) the hierarchy answers, started from the
-//! cell's best triangle. Both give the same triangle, point and distance, ties included (the
+//! is empty or crowded, the point is outside the grid, or the query's hint lies a quarter of a
+//! cell away or more, so the ball would seldom fit) the hierarchy answers, started from the
+//! cell's best triangle where there is one. Both give the same triangle, point and distance, ties included (the
 //! lowest index), so results do not depend on which answered.
 
 use super::Bvh;
@@ -16,6 +17,8 @@ use crate::geometry::Vec3;
 const MAX_CELLS: usize = 1 << 22;
 /// A cell with more triangles than this is left to the hierarchy.
 const CROWDED: usize = 48;
+/// A hint this far from the point, in cell edges, sends the query to the hierarchy.
+const FAR_HINT: f64 = 0.25;
 /// Cell edge over the median triangle's longest box side.
 const CELL_OVER_TRIANGLE: f64 = 1.4;
 
@@ -173,21 +176,26 @@ impl Cells {
             cell[k] = u as usize;
             low[k] = self.origin[k] + cell[k] as f64 * self.size;
         }
+        let mut best: Option<(u32, Vec3, F, f64)> = None;
+        let mut best_d2 = f64::INFINITY;
+        // The hint first: its distance lets most of the list be passed over by their boxes.
+        // A hint farther than a quarter of a cell (a point off the surface, or the hint of an
+        // unrelated point) says the ball will seldom fit in the cell: the hierarchy answers.
+        if (hint as usize) < bvh.mesh().triangles.len() {
+            let [a, b, c] = bvh.mesh().corners(hint as usize);
+            let (q, f) = closest(p, &a, &b, &c);
+            best_d2 = (p - q).norm_squared();
+            if best_d2 > (FAR_HINT * self.size).powi(2) {
+                return Near::Nothing;
+            }
+            best = Some((hint, q, f, best_d2));
+        }
         let c = (cell[2] * self.dims[1] + cell[1]) * self.dims[0] + cell[0];
         let list = &self.refs[self.start[c] as usize..self.start[c + 1] as usize];
         if list.is_empty() {
             return Near::Nothing;
         }
         let (order, corners) = bvh.leaf_order();
-        let mut best: Option<(u32, Vec3, F, f64)> = None;
-        let mut best_d2 = f64::INFINITY;
-        // The hint first: its distance lets most of the list be passed over by their boxes.
-        if (hint as usize) < bvh.mesh().triangles.len() {
-            let [a, b, c] = bvh.mesh().corners(hint as usize);
-            let (q, f) = closest(p, &a, &b, &c);
-            best_d2 = (p - q).norm_squared();
-            best = Some((hint, q, f, best_d2));
-        }
         for &pos in list {
             let tri = order[pos as usize];
             let [a, b, c] = &corners[pos as usize];

@@ -176,19 +176,13 @@ impl Cells {
             cell[k] = u as usize;
             low[k] = self.origin[k] + cell[k] as f64 * self.size;
         }
-        let mut best: Option<(u32, Vec3, F, f64)> = None;
-        let mut best_d2 = f64::INFINITY;
         // The hint first: its distance lets most of the list be passed over by their boxes.
         // A hint farther than a quarter of a cell (a point off the surface, or the hint of an
         // unrelated point) says the ball will seldom fit in the cell: the hierarchy answers.
-        if (hint as usize) < bvh.mesh().triangles.len() {
-            let [a, b, c] = bvh.mesh().corners(hint as usize);
-            let (q, f) = closest(p, &a, &b, &c);
-            best_d2 = (p - q).norm_squared();
-            if best_d2 > (FAR_HINT * self.size).powi(2) {
-                return Near::Nothing;
-            }
-            best = Some((hint, q, f, best_d2));
+        let mut best = bvh.at_triangle(p, hint, &closest);
+        let mut best_d2 = best.as_ref().map_or(f64::INFINITY, |b| b.3);
+        if best_d2.is_finite() && best_d2 > (FAR_HINT * self.size).powi(2) {
+            return Near::Nothing;
         }
         let c = (cell[2] * self.dims[1] + cell[1]) * self.dims[0] + cell[0];
         let list = &self.refs[self.start[c] as usize..self.start[c + 1] as usize];

@@ -260,6 +260,20 @@ fn closest_on_triangle(p: &Vec3, a: &Vec3, b: &Vec3, c: &Vec3) -> (Vec3, Feature
 }
 
 impl Bvh {
+    /// `p`'s closest point on triangle `tri` (`None` for an index out of range) as
+    /// [`Bvh::closest`] gives it: (triangle, point, feature, squared distance).
+    pub(super) fn at_triangle<F: Copy>(
+        &self,
+        p: &Vec3,
+        tri: u32,
+        closest: &impl Fn(&Vec3, &Vec3, &Vec3, &Vec3) -> (Vec3, F),
+    ) -> Option<(u32, Vec3, F, f64)> {
+        self.mesh().triangles.get(tri as usize)?;
+        let [a, b, c] = self.mesh().corners(tri as usize);
+        let (q, f) = closest(p, &a, &b, &c);
+        Some((tri, q, f, (p - q).norm_squared()))
+    }
+
     /// Nearest triangle to `p` by best-first traversal with box-distance pruning, using
     /// `closest` for the point on a triangle: (triangle, point, feature, squared distance).
     /// `hint` (a triangle index, or out of range for none) is tried first: its distance
@@ -275,14 +289,8 @@ impl Bvh {
         if self.mesh().triangles.is_empty() || !p.iter().all(|c| c.is_finite()) {
             return None;
         }
-        let mut best: Option<(u32, Vec3, F, f64)> = None;
-        let mut best_d2 = f64::INFINITY;
-        if (hint as usize) < self.mesh().triangles.len() {
-            let [a, b, c] = self.mesh().corners(hint as usize);
-            let (q, f) = closest(p, &a, &b, &c);
-            best_d2 = (p - q).norm_squared();
-            best = Some((hint, q, f, best_d2));
-        }
+        let mut best = self.at_triangle(p, hint, &closest);
+        let mut best_d2 = best.as_ref().map_or(f64::INFINITY, |b| b.3);
         let mut stack = [(self.root(), 0.0f64); 64];
         let mut sp = 1usize;
         while sp > 0 {

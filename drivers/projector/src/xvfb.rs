@@ -205,7 +205,7 @@ fn is_free(n: u32) -> bool {
         }
         Err(_) => false,
         Ok(text) => match text.trim().parse::<u32>() {
-            Ok(pid) if !PathBuf::from(format!("/proc/{pid}")).exists() => {
+            Ok(pid) if gone(pid) => {
                 let _ = std::fs::remove_file(socket(n));
                 std::fs::remove_file(lock(n)).is_ok()
             }
@@ -214,12 +214,22 @@ fn is_free(n: u32) -> bool {
     }
 }
 
+/// Whether process `pid` has ended: no such process, or a zombie that nothing has reaped (a
+/// server whose parent died, in a container whose first process does not reap).
+fn gone(pid: u32) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/stat")).map_or(true, |s| {
+        s.rsplit(')')
+            .next()
+            .is_some_and(|r| r.trim_start().starts_with('Z'))
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    /// A lock naming a process that is gone frees its display; one naming a live process (this
-    /// one) does not.
+    /// A lock naming a process that is gone or a zombie frees its display; one naming a live
+    /// process (this one) does not.
     #[test]
     fn stale_locks_free_their_display_and_live_ones_do_not() {
         let n = (DISPLAYS.end..DISPLAYS.end + 800)
@@ -230,7 +240,16 @@ mod tests {
         assert!(is_free(n) && !lock(n).exists());
         std::fs::write(lock(n), format!("{:>10}\n", std::process::id())).expect("lock");
         assert!(!is_free(n) && lock(n).exists());
-        std::fs::remove_file(lock(n)).expect("remove");
+        // A zombie (ended, not yet reaped) holds its display no more than a process gone.
+        let mut child = Command::new("true").spawn().expect("true");
+        let t = Instant::now();
+        while !gone(child.id()) {
+            assert!(t.elapsed() < Duration::from_secs(10), "`true` did not end");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        std::fs::write(lock(n), format!("{:>10}\n", child.id())).expect("lock");
+        assert!(is_free(n) && !lock(n).exists());
+        child.wait().expect("reaped");
     }
 
     /// Set in the process [`a_tied_server_ends_with_the_process_that_started_it`] runs as the
@@ -272,22 +291,22 @@ mod tests {
         assert_eq!(lock_pid(n), Some(pid));
         parent.kill().expect("SIGKILL");
         parent.wait().expect("reaped");
-        // Gone, or a zombie that no init has reaped yet, and its lock removed by itself.
-        let deadline = Instant::now() + Duration::from_secs(10);
-        let ended = || {
-            std::fs::read_to_string(format!("/proc/{pid}/stat")).map_or(true, |s| {
-                s.rsplit(')')
-                    .next()
-                    .is_some_and(|r| r.trim_start().starts_with('Z'))
-            })
-        };
-        while !ended() || lock(n).exists() {
+        // Gone, or a zombie that no init has reaped yet. The SIGTERM normally lets it remove
+        // its lock and socket; one that arrives before the server has set its handlers ends it
+        // by default and leaves them, and the display is then free by its stale lock.
+        let deadline = Instant::now() + Duration::from_secs(30);
+        while !gone(pid) {
             assert!(
                 Instant::now() < deadline,
-                "Xvfb {pid} on :{n} still runs 10 s after its parent was killed"
+                "Xvfb {pid} on :{n} still runs 30 s after its parent was killed"
             );
             std::thread::sleep(Duration::from_millis(50));
         }
+        assert!(
+            is_free(n),
+            "display :{n} is not free after its server ended"
+        );
+        assert!(!lock(n).exists() && !socket(n).exists());
     }
 
     /// A display that its files call free but whose server cannot start (its socket's path is

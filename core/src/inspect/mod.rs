@@ -957,12 +957,14 @@ fn rivals_from<'a>(contenders: &'a [Pose], params: &InspectParams) -> rim::Rival
 /// the same, so a fit without the rim goes on from here.
 #[derive(Clone)]
 struct Fork {
+    /// The pass, and the pose it began from.
     pass: usize,
-    /// The pose the pass began from, and the pose and iterations after its consensus step.
     before: Pose,
+    /// After the pass's consensus step: the pose, the iterations so far, the trusted points.
     pose: Pose,
     total: usize,
     trusted: Vec<bool>,
+    /// The measurement noise of the rough fit, and the motion of the pass before.
     noise: f64,
     last_moved: f64,
 }

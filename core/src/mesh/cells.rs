@@ -7,8 +7,8 @@
 //! such triangle is on the cell's list. Otherwise (the ball crosses the cell's faces, the cell
 //! is empty or crowded, the point is outside the grid, or the query's hint lies a quarter of a
 //! cell away or more, so the ball would seldom fit) the hierarchy answers, started from the
-//! cell's best triangle where there is one. Both give the same triangle, point and distance, ties included (the
-//! lowest index), so results do not depend on which answered.
+//! cell's best triangle where there is one. Both give the same triangle, point and distance,
+//! ties included (the lowest index), so results do not depend on which answered.
 
 use super::Bvh;
 use crate::geometry::Vec3;

@@ -1187,14 +1187,21 @@ fn trusted_region_passes(
     if let (Some(_), Some((cad_rim, edge_cloud)), false) =
         (&rim_fit, &edges_on_rim, crate::budget::spent())
     {
+        // The pose the fit began from (the coarse alignment's best) contends as its runners-up
+        // do: the passes may have carried the fit from it to its symmetric twin, which the
+        // search from here would not reach.
+        let mut finals = contenders.to_vec();
+        if params.init.is_none() && motion(&start, &pose) > params.tolerance {
+            finals.push(start);
+        }
         let rivals = match &search {
             Some(s)
-                if contenders.is_empty()
+                if finals.is_empty()
                     && motion(&pose, &s.from) < 0.1 * params.tolerance.min(1.0) =>
             {
                 rim::Rivals::Reuse(s)
             }
-            _ => rivals_from(contenders, params),
+            _ => rivals_from(&finals, params),
         };
         rim_fit = rim::register(
             edge_cloud,

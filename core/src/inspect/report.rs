@@ -213,6 +213,11 @@ pub(super) fn build(
     if !unpinned.is_empty() {
         unmeasured.extend(fit.rim.as_ref().and_then(|r| r.ambiguous.clone()));
     }
+    if let Some(spread) = fit.rim.as_ref().and_then(|r| r.spread_mm) {
+        warnings.push(format!(
+            "the part's edges pin its position on the CAD to within {spread:.1} mm: another fit of them places the points that far apart, so a deviation may be shown up to {spread:.1} mm from where it is"
+        ));
+    }
     unmeasured.extend(unpinned);
     let datums: Vec<DatumResidual> = params
         .datums

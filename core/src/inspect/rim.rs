@@ -69,7 +69,26 @@ struct RimSample {
 pub(super) struct CadRim {
     samples: Vec<RimSample>,
     spacing: f64,
+    /// Each sample's neighbours along the rim (within [`BESIDE`] spacings), as ranges of
+    /// `beside` given by `beside_at` (one more entry than samples).
+    beside_at: Vec<u32>,
+    beside: Vec<u32>,
 }
+
+/// Share of the edges the finest window shows near the rim that must lie on it for the rim to
+/// take part: where nearly all of them lie elsewhere (a scan ending short of the rim, or
+/// reaching past it in mixed pixels, all round), the few on it are that limit's stragglers.
+const MIN_SHARE: f64 = 0.2;
+
+/// Samples this many spacings apart or less are beside each other along the rim.
+const BESIDE: f64 = 2.5;
+
+/// A rim sample's edge counts only where at least this many of the samples beside it show an
+/// edge as well and the median offset of those edges and its own lies within half the band:
+/// a trim line is seen along runs of samples whose edges lie on it, while a coverage limit a
+/// few millimetres inside the rim brushes the band only where its edge estimate's noise
+/// reaches it, among neighbours that lie as far inside as the limit.
+const IN_A_RUN: usize = 2;
 
 impl CadRim {
     /// The open boundary of the CAD: edges used by one triangle. A closed part has none.
@@ -116,12 +135,52 @@ impl CadRim {
             }
             carry = at - len;
         }
-        CadRim { samples, spacing }
+        let points: Vec<[f64; 3]> = samples.iter().map(|s| s.point.into()).collect();
+        let tree = KdTree::new(&points);
+        let (mut beside_at, mut beside) = (vec![0u32], Vec::new());
+        let mut near = Vec::new();
+        for (k, p) in points.iter().enumerate() {
+            tree.within(p, BESIDE * spacing, &mut near);
+            beside.extend(near.iter().filter(|(j, _)| *j != k).map(|(j, _)| *j as u32));
+            beside_at.push(beside.len() as u32);
+        }
+        CadRim {
+            samples,
+            spacing,
+            beside_at,
+            beside,
+        }
     }
 
     /// Whether the CAD has an open boundary.
     pub(super) fn is_empty(&self) -> bool {
         self.samples.is_empty()
+    }
+
+    /// The samples beside sample `k` along the rim.
+    fn beside(&self, k: usize) -> &[u32] {
+        &self.beside[self.beside_at[k] as usize..self.beside_at[k + 1] as usize]
+    }
+
+    /// `weights` (of `obs`, in the samples' order) with the edges that the edges beside them
+    /// on the rim do not support set to 0 (see [`IN_A_RUN`]; `band`: how far from the rim an
+    /// edge lies on it, mm).
+    fn in_runs(&self, obs: &[(usize, f64, usize)], weights: &mut [f64], band: f64) {
+        let mut near = Vec::new();
+        for (o, w) in obs.iter().zip(weights.iter_mut()) {
+            if *w > 0.0 {
+                near.clear();
+                near.push(o.1);
+                near.extend(self.beside(o.0).iter().filter_map(|j| {
+                    obs.binary_search_by_key(&(*j as usize), |e| e.0)
+                        .ok()
+                        .map(|i| obs[i].1)
+                }));
+                if near.len() <= IN_A_RUN || median(&near).abs() > 0.5 * band {
+                    *w = 0.0;
+                }
+            }
+        }
     }
 }
 
@@ -153,6 +212,11 @@ pub struct RimUse {
     /// the verdict's conditioning.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub ambiguous: Option<String>,
+    /// How far apart another placement puts the points that rests on nearly as much rim,
+    /// where that is under [`NEAR_RIVAL`] tolerances: the rim pins the fit, to within this
+    /// (mm). A deviation may be shown up to this far from where it is.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub spread_mm: Option<f64>,
 }
 
 /// The result of [`register`]: the pose, the edge pairs it rests on and the summary.
@@ -376,14 +440,24 @@ impl<'a> RimCloud<'a> {
         } else {
             spacing
         };
+        let areal = areal_spacing(&pts, &tree);
         RimCloud {
             pts,
             tree,
             spacing,
-            finest: WINDOWS[WINDOWS.len() - 1].max(6.0 * spacing.max(sparse_spacing)),
+            finest: WINDOWS[WINDOWS.len() - 1]
+                .max(6.0 * spacing.max(sparse_spacing))
+                .max(FINEST_OVER_AREA * areal),
         }
     }
 }
+
+/// The narrowest window in areal point spacings: [`observe`] takes a strip's edge only where
+/// the strip reaches four of its point spacings past the edge (a run's largest gap), which a
+/// window of fewer than about five never does for an edge on the rim: a random cloud's
+/// strips then showed edges only where their points happened to lie dense, biased inwards,
+/// and the finest rounds walked millimetres off the rim they had found.
+const FINEST_OVER_AREA: f64 = 6.0;
 
 /// What [`register`] works with.
 struct Scene<'a> {
@@ -499,13 +573,15 @@ impl Scene<'_> {
         // At the finest window an edge within a few point spacings of the rim counts, however
         // widely the rest scatter (a wavering coverage limit near the rim).
         // and an edge is on the rim only within `band` of it.
-        let weights: Vec<f64> = tukey(&offsets, 0.5 * self.spacing, self.spacing)
+        let mut weights: Vec<f64> = tukey(&offsets, 0.5 * self.spacing, self.spacing)
             .into_iter()
             .zip(&offsets)
             .map(|(w, e)| if e.abs() <= self.band { w } else { 0.0 })
             .collect();
+        self.rim.in_runs(&obs, &mut weights, self.band);
         let c = Converged { pose, obs, weights };
-        (c.matched().len() >= MIN_EDGES).then_some(c)
+        let on = c.matched().len();
+        (on >= MIN_EDGES && on as f64 >= MIN_SHARE * c.obs.len() as f64).then_some(c)
     }
 
     /// About 3 000 of the cloud's points, for [`Scene::overhang`].
@@ -617,6 +693,12 @@ const FLAT_EVIDENCE: f64 = 0.9;
 /// A surface RMS below this share of another placement's fits the surface clearly better (the
 /// noise moves the RMS of placements along a slide by a few per cent).
 const CLEARLY_BETTER: f64 = 0.8;
+
+/// Rival placements at most this many tolerances (and at least 0.5 mm) apart from the winner
+/// do not leave the rim unable to pin the fit: two fits of one trim line's noisy edges settle
+/// that close, and a systematic deviation of two tolerances moves a fit that far along a
+/// weakly pinned motion, which the report states as a warning, not as a part not measured.
+pub(super) const NEAR_RIVAL: f64 = 2.0;
 
 /// Register `surface` (cloud frame: the trusted points) to `cad` from `pose` together with the
 /// edges `cloud` shows on the CAD's rim; `None` when too few edges are found (the scan
@@ -737,6 +819,7 @@ pub(super) fn register(
     }
     let best = all.swap_remove(0);
     let matched = best.matched();
+    let best_rms = scene.surface_rms(&best.pose);
     // (how far apart the points are placed, the rival's rim, turned by more than 10°)
     let rivals: Vec<(f64, usize, bool)> = all
         .iter()
@@ -782,24 +865,21 @@ pub(super) fn register(
             // by that alone: along the motion between them the rim's evidence is flat (a
             // slide along a saddle's valley whose rim samples all face across it).
             let flat = theirs.len() as f64 >= FLAT_EVIDENCE * matched.len() as f64;
+            // A placement turned against the winner that fits the surface clearly worse is
+            // told apart by the surface (an outline symmetric where the surface is not).
+            let turned = crate::register::rotation_angle_deg(&rel) > 10.0;
             (apart > tolerance.max(0.5)
                 && 2 * theirs.len() >= matched.len()
-                && (flat || new + MIN_EDGES as f64 >= 0.5 * own))
-                .then_some((
-                    apart,
-                    theirs.len(),
-                    crate::register::rotation_angle_deg(&rel) > 10.0,
-                ))
+                && (flat || new + MIN_EDGES as f64 >= 0.5 * own)
+                && !(turned && best_rms < CLEARLY_BETTER * scene.surface_rms(&c.pose)))
+            .then_some((apart, theirs.len(), turned))
         })
         .collect();
     // A contender that fits the surface as well, puts no more of the scan past the rim and
     // reaches no rim is not contradicted by the rim: the winner's edges may be where its
     // coverage ends, laid on the rim by the weak motions the fit had.
     let sample = scene.overhang_sample();
-    let (own_rms, own_past) = (
-        scene.surface_rms(&best.pose),
-        scene.overhang(&best.pose, &sample),
-    );
+    let (own_rms, own_past) = (best_rms, scene.overhang(&best.pose, &sample));
     let allowed = own_past + 3 + sample.len() / 1000;
     let mut rivals = rivals;
     for &pose in &short {
@@ -813,25 +893,37 @@ pub(super) fn register(
         }
     }
     // A slide, or any placement that reaches no rim, leaves the rim unable to pin the weak
-    // motions; a turned placement resting on the rim as well marks a symmetric outline.
+    // motions; a turned placement resting on the rim as well marks a symmetric outline. One
+    // that places the points only a little apart is how closely the rim pins them.
+    let near = NEAR_RIVAL * tolerance.max(0.5);
+    let untold = |r: &&(f64, usize, bool)| !r.2 || r.1 == 0;
     let rival = rivals
         .iter()
-        .filter(|r| !r.2 || r.1 == 0)
+        .filter(untold)
+        .filter(|r| r.0 > near)
         .max_by(|a, b| a.0.total_cmp(&b.0));
+    let spread = rivals
+        .iter()
+        .filter(untold)
+        .filter(|r| r.0 <= near)
+        .map(|r| r.0)
+        .max_by(f64::total_cmp);
     let turned_rival = rivals.iter().any(|r| r.2);
     let search = Search {
         from: best.pose,
         others: all,
         short,
     };
-    Some(finish(
+    let mut fit = finish(
         rim,
         &scene,
         best,
         rival.map(|r| (r.0, r.1)),
         turned_rival,
         Some(search),
-    ))
+    );
+    fit.summary.spread_mm = spread.filter(|_| fit.summary.ambiguous.is_none());
+    Some(fit)
 }
 
 /// The result of the winning fit `best`, with the farthest untold-apart placement (how far
@@ -859,6 +951,7 @@ fn finish(
         rms_mm: (used.iter().map(|e| e * e).sum::<f64>() / used.len() as f64).sqrt(),
         left_out: best.obs.len() - used.len(),
         ambiguous: rival.map(|r| ambiguity(used.len() as f64 * rim.spacing, r)),
+        spread_mm: None,
     };
     tracing::debug!(?summary, spacing = scene.spacing, "rim-aware fit");
     RimFit {
@@ -868,6 +961,23 @@ fn finish(
         turned_rival,
         search,
     }
+}
+
+/// The side of the area each point of `pts` covers (the square root of the area per point
+/// from the disk holding each sampled point's 12 nearest neighbours), mm: a lattice's
+/// spacing, and for a random cloud about twice its median nearest-neighbour distance.
+fn areal_spacing(pts: &[[f64; 3]], tree: &KdTree) -> f64 {
+    const K: usize = 12;
+    let d: Vec<f64> = pts
+        .par_iter()
+        .step_by((pts.len() / 2000).max(1))
+        .map_init(Vec::new, |nn, p| {
+            tree.k_nearest(p, K + 1, nn);
+            nn.get(K)
+                .map_or(f64::NAN, |e| (std::f64::consts::PI * e.1 / K as f64).sqrt())
+        })
+        .collect();
+    median(&d)
 }
 
 /// Median distance from a point to its nearest neighbour (a sample of the cloud), mm.

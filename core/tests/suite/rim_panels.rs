@@ -218,70 +218,88 @@ fn location_error(case: &Case, result: &Inspection) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// One case of the family seen to its rim: placed within 0.5 mm, the rim taking part, the
+/// planted deviations found and the right verdict. Returns the location error, mm.
+fn placed_and_judged(seed: u64) -> f64 {
+    let case = generate(seed, 0.0, false);
+    let result = run(&case);
+    let rep = &result.report;
+    let location = location_error(&case, &result);
+    let rms = {
+        let (mut s, mut n) = (0.0, 0usize);
+        for (d, t) in result.deviations.iter().zip(&case.field) {
+            if d.is_finite() {
+                s += (d - t).powi(2);
+                n += 1;
+            }
+        }
+        (s / n.max(1) as f64).sqrt()
+    };
+    eprintln!(
+        "seed {seed} ({}, {:.0} % covered, {} points, deformed {}): {} by {}, location error {location:.3} mm, deviation RMS vs planted {rms:.4} mm, rim {:?}, reasons {:?}, warnings {:?}",
+        case.describe,
+        100.0 * case.coverage,
+        case.cloud.len(),
+        case.deformed,
+        rep.verdict,
+        rep.registration.mode,
+        rep.registration.rim,
+        rep.reasons,
+        rep.warnings
+    );
+    assert!(
+        (0.6..=1.0).contains(&case.coverage),
+        "seed {seed}: coverage {}",
+        case.coverage
+    );
+    assert!(location <= 0.5, "seed {seed}: location error {location} mm");
+    let rim = rep.registration.rim.as_ref().expect("the rim took part");
+    assert!(rim.rms_mm < 0.5, "seed {seed}: {rim:?}");
+    if case.deformed {
+        assert_eq!(rep.verdict, "fail", "seed {seed}: {:?}", rep.reasons);
+        assert!(
+            rep.regions_out_of_tolerance.iter().any(|g| {
+                (g.centroid[0] - case.dent.0).hypot(g.centroid[1] - case.dent.1) < 40.0
+                    && g.peak_deviation_mm < 0.0
+            }) || case.field.iter().all(|f| *f > -0.3),
+            "seed {seed}: no region below the band near the dent {:?}",
+            case.dent
+        );
+    } else {
+        assert_eq!(rep.verdict, "pass", "seed {seed}: {:?}", rep.reasons);
+    }
+    location
+}
+
 #[test]
 fn smooth_panels_seen_to_their_rim_are_placed_and_judged() {
     let mut worst = 0.0f64;
-    let family = seeds(4, 24);
-    for seed in family {
+    for seed in seeds(4, 24) {
         if std::env::var("RIM_SEED").is_ok_and(|s| s != seed.to_string()) {
             continue;
         }
-        let case = generate(seed, 0.0, false);
-        let result = run(&case);
-        let rep = &result.report;
-        let location = location_error(&case, &result);
-        let rms = {
-            let (mut s, mut n) = (0.0, 0usize);
-            for (d, t) in result.deviations.iter().zip(&case.field) {
-                if d.is_finite() {
-                    s += (d - t).powi(2);
-                    n += 1;
-                }
-            }
-            (s / n.max(1) as f64).sqrt()
-        };
-        eprintln!(
-            "seed {seed} ({}, {:.0} % covered, {} points, deformed {}): {} by {}, location error {location:.3} mm, deviation RMS vs planted {rms:.4} mm, rim {:?}, reasons {:?}, warnings {:?}",
-            case.describe,
-            100.0 * case.coverage,
-            case.cloud.len(),
-            case.deformed,
-            rep.verdict,
-            rep.registration.mode,
-            rep.registration.rim,
-            rep.reasons,
-            rep.warnings
-        );
-        assert!(
-            (0.6..=1.0).contains(&case.coverage),
-            "seed {seed}: coverage {}",
-            case.coverage
-        );
-        assert!(location <= 0.5, "seed {seed}: location error {location} mm");
-        let rim = rep.registration.rim.as_ref().expect("the rim took part");
-        assert!(rim.rms_mm < 0.5, "seed {seed}: {rim:?}");
-        if case.deformed {
-            assert_eq!(rep.verdict, "fail", "seed {seed}: {:?}", rep.reasons);
-            assert!(
-                rep.regions_out_of_tolerance.iter().any(|g| {
-                    (g.centroid[0] - case.dent.0).hypot(g.centroid[1] - case.dent.1) < 40.0
-                }) || case.field.iter().all(|f| *f > -0.3),
-                "seed {seed}: no region near the dent {:?}",
-                case.dent
-            );
-        } else {
-            assert_eq!(rep.verdict, "pass", "seed {seed}: {:?}", rep.reasons);
-        }
-        worst = worst.max(location);
+        worst = worst.max(placed_and_judged(seed));
     }
     eprintln!("worst location error {worst:.3} mm");
 }
 
-/// Seed 13's saddle fitted on 20 000 of its points: every placement the rim search reaches lies
-/// along one valley of the saddle, each matching within a few per cent as much rim as the best,
-/// the best of them 94 mm from the truth. Along that slide the rim's evidence is flat, so none of
-/// them pins it: the inspection places the panel right or says it cannot, and never gives a
-/// verdict from a map that far off.
+/// Random clouds of about 0.7 points per mm² (spacing ~1.2 mm, the nearest neighbour ~0.6 mm):
+/// a strip across the rim holds few points, and the finest window must reach far enough past
+/// the edge to tell it. Sized by the nearest neighbour, it shows edges only where points lie
+/// dense, and seed 13 (a saddle with one side unseen) slides 52 mm along its valley, seed 17 (a
+/// sheet) is laid turned. Seed 15's dent lies inside the margin of its bulge: a region of its
+/// own, below the band.
+#[test]
+fn sparse_random_clouds_are_placed_by_their_rims() {
+    for seed in [13u64, 15, 17] {
+        placed_and_judged(seed);
+    }
+}
+
+/// Seed 13's saddle fitted on 20 000 of its points: placements along one valley of the saddle
+/// each match nearly as much rim as the best, so where the rim's evidence is flat along that
+/// slide none of them pins it: the inspection places the panel right or says it cannot, and
+/// never gives a verdict from a map that far off.
 #[test]
 fn a_slide_along_which_the_rims_evidence_is_flat_is_not_taken_as_pinned() {
     let case = generate(13, 0.0, false);

@@ -213,8 +213,8 @@ pub struct RimUse {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub ambiguous: Option<String>,
     /// How far apart another placement puts the points that rests on nearly as much rim,
-    /// where that is under [`NEAR_RIVAL`] tolerances: the rim pins the fit, to within this
-    /// (mm). A deviation may be shown up to this far from where it is.
+    /// where that is within two tolerances (at least 1 mm): the rim pins the fit, to within
+    /// this (mm). A deviation may be shown up to this far from where it is.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub spread_mm: Option<f64>,
 }

@@ -84,7 +84,7 @@ const MIN_SHARE: f64 = 0.2;
 const BESIDE: f64 = 2.5;
 
 /// A rim sample's edge counts only where at least this many of the samples beside it show an
-/// edge as well and the median offset of those edges and its own lies within half the band:
+/// edge as well and the median offset of those edges and its own lies within the band:
 /// a trim line is seen along runs of samples whose edges lie on it, while a coverage limit a
 /// few millimetres inside the rim brushes the band only where its edge estimate's noise
 /// reaches it, among neighbours that lie as far inside as the limit.
@@ -176,7 +176,7 @@ impl CadRim {
                         .ok()
                         .map(|i| obs[i].1)
                 }));
-                if near.len() <= IN_A_RUN || median(&near).abs() > 0.5 * band {
+                if near.len() <= IN_A_RUN || median(&near).abs() > band {
                     *w = 0.0;
                 }
             }
@@ -694,8 +694,8 @@ const FLAT_EVIDENCE: f64 = 0.9;
 /// noise moves the RMS of placements along a slide by a few per cent).
 const CLEARLY_BETTER: f64 = 0.8;
 
-/// Rival placements at most this many tolerances (and at least 0.5 mm) apart from the winner
-/// do not leave the rim unable to pin the fit: two fits of one trim line's noisy edges settle
+/// Rival placements resting on the rim at most this many tolerances (and at least 0.5 mm)
+/// apart from the winner do not leave the rim unable to pin the fit: two fits of one trim line's noisy edges settle
 /// that close, and a systematic deviation of two tolerances moves a fit that far along a
 /// weakly pinned motion, which the report states as a warning, not as a part not measured.
 pub(super) const NEAR_RIVAL: f64 = 2.0;
@@ -895,17 +895,20 @@ pub(super) fn register(
     // A slide, or any placement that reaches no rim, leaves the rim unable to pin the weak
     // motions; a turned placement resting on the rim as well marks a symmetric outline. One
     // that places the points only a little apart is how closely the rim pins them.
+    // A placement reaching no rim is a rival however near: placed there, the scan may end short
+    // of the rim all round, and the rim's edges none of its own.
     let near = NEAR_RIVAL * tolerance.max(0.5);
     let untold = |r: &&(f64, usize, bool)| !r.2 || r.1 == 0;
+    let is_near = |r: &&(f64, usize, bool)| r.0 <= near && r.1 > 0;
     let rival = rivals
         .iter()
         .filter(untold)
-        .filter(|r| r.0 > near)
+        .filter(|r| !is_near(r))
         .max_by(|a, b| a.0.total_cmp(&b.0));
     let spread = rivals
         .iter()
         .filter(untold)
-        .filter(|r| r.0 <= near)
+        .filter(is_near)
         .map(|r| r.0)
         .max_by(f64::total_cmp);
     let turned_rival = rivals.iter().any(|r| r.2);

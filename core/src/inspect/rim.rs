@@ -176,7 +176,11 @@ impl CadRim {
                         .ok()
                         .map(|i| obs[i].1)
                 }));
-                if near.len() <= IN_A_RUN || median(&near).abs() > band {
+                // (the median, selected in the scratch list: no allocation per edge)
+                let m = near.len() / 2;
+                if near.len() <= IN_A_RUN
+                    || near.select_nth_unstable_by(m, f64::total_cmp).1.abs() > band
+                {
                     *w = 0.0;
                 }
             }
@@ -421,7 +425,8 @@ impl<'a> RimCloud<'a> {
     /// Index an even sample of `cloud` (the cloud frame; denser than the surface fit's, so that
     /// a strip across the rim holds several columns of points and where the scan ends is
     /// measured to a fraction of their spacing). The narrowest window is sized by the spacing
-    /// of `sparse`, the surface fit's sample (a subset of the cloud where it is large): a strip
+    /// of `sparse`, the surface fit's sample (a subset of the cloud where it is large), and by
+    /// the area each point of the sample covers (see [`FINEST_OVER_AREA`]): a strip
     /// across the rim then holds enough of `pts` for a run even where the scan ends a few
     /// millimetres short of the rim. Sized by the spacing of `pts` alone, a strip of a sparse
     /// random cloud held about as few points as a run needs, and which strips showed an edge

@@ -84,3 +84,16 @@ pub fn panel_cloud(mesh: &ris_core::mesh::TriangleMesh, n: usize) -> Vec<[f64; 3
         })
         .collect()
 }
+
+/// RMS of `measured` − `truth` over the finite measured values (a deviation map against the
+/// deviations planted), mm.
+pub fn rms_against(measured: &[f64], truth: &[f64]) -> f64 {
+    let (mut s, mut n) = (0.0, 0usize);
+    for (d, t) in measured.iter().zip(truth) {
+        if d.is_finite() {
+            s += (d - t).powi(2);
+            n += 1;
+        }
+    }
+    (s / n.max(1) as f64).sqrt()
+}

@@ -188,14 +188,7 @@ fn location_error(case: &Case, result: &Inspection) -> f64 {
 }
 
 fn deviation_error_rms(case: &Case, result: &Inspection) -> f64 {
-    let (mut s, mut n) = (0.0, 0usize);
-    for (d, t) in result.deviations.iter().zip(&case.field) {
-        if d.is_finite() {
-            s += (d - t).powi(2);
-            n += 1;
-        }
-    }
-    (s / n.max(1) as f64).sqrt()
+    common::rms_against(&result.deviations, &case.field)
 }
 
 #[test]

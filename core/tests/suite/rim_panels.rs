@@ -225,16 +225,7 @@ fn placed_and_judged(seed: u64) -> f64 {
     let result = run(&case);
     let rep = &result.report;
     let location = location_error(&case, &result);
-    let rms = {
-        let (mut s, mut n) = (0.0, 0usize);
-        for (d, t) in result.deviations.iter().zip(&case.field) {
-            if d.is_finite() {
-                s += (d - t).powi(2);
-                n += 1;
-            }
-        }
-        (s / n.max(1) as f64).sqrt()
-    };
+    let rms = common::rms_against(&result.deviations, &case.field);
     eprintln!(
         "seed {seed} ({}, {:.0} % covered, {} points, deformed {}): {} by {}, location error {location:.3} mm, deviation RMS vs planted {rms:.4} mm, rim {:?}, reasons {:?}, warnings {:?}",
         case.describe,

@@ -52,6 +52,11 @@ const MAX_SAMPLES: usize = 20_000;
 /// Points of the cloud in which edges are looked for: a larger cloud is thinned to every
 /// `len / EDGE_POINTS`-th point (up to twice as many).
 const EDGE_POINTS: usize = 200_000;
+/// Trusted points (about; up to twice as many) in the surface part of every windowed fit: the
+/// surface holds only the motions it pins strongly, which a few thousand points fix to a
+/// micrometre, while a fit's cost grows with their number and a rival search converges tens
+/// of fits of up to sixteen rounds each.
+const SURFACE_POINTS: usize = 2_000;
 
 /// One sample of the CAD's open boundary.
 #[derive(Clone, Copy, Debug)]
@@ -729,7 +734,7 @@ pub(super) fn register(
         tree: &cloud.tree,
         fit_set: surface
             .iter()
-            .step_by((surface.len() / 8_000).max(1))
+            .step_by((surface.len() / SURFACE_POINTS).max(1))
             .copied()
             .collect(),
         cad,

@@ -5,6 +5,7 @@
 //! pose's score is kept so that an ambiguous case (a symmetric or deformed part) is visible.
 
 use nalgebra::{Matrix3, Point3, UnitQuaternion, Vector3};
+use rayon::prelude::*;
 use serde::Serialize;
 
 use super::fit_to_surface;
@@ -191,11 +192,11 @@ pub(super) fn coarse_alignment(
         .step_by((sub.len() / 800).max(1))
         .copied()
         .collect();
-    let mut first: Vec<Scored> = candidates.iter().map(|c| refine(&few, c, 8)).collect();
+    // (independent refinements side by side: each is too small to spread over the threads)
+    let mut first: Vec<Scored> = candidates.par_iter().map(|c| refine(&few, c, 8)).collect();
     first.sort_by(order);
-    let scored: Vec<Scored> = first
-        .iter()
-        .take(6)
+    let scored: Vec<Scored> = first[..first.len().min(6)]
+        .par_iter()
         .map(|(_, _, p, _)| refine(&sub, p, 20))
         .collect();
     let mut sorted: Vec<&Scored> = scored.iter().collect();

@@ -97,6 +97,20 @@ fn cad_moments(cad: &SignedDistance) -> (Vector3<f64>, Matrix3<f64>) {
     (c, cov)
 }
 
+/// Cubes across the CAD's bounding diagonal in which [`proxy`] merges its vertices: a 1 m
+/// part's stand-in (8 mm cubes) keeps a smooth surface to within the sagitta over a cube, far
+/// inside the scoring band, with a few per cent of a fine mesh's triangles.
+const PROXY_CELLS: f64 = 128.0;
+
+/// The CAD clustered at [`PROXY_CELLS`] across its diagonal, where that leaves fewer than half
+/// its triangles (a coarse CAD is its own stand-in).
+fn proxy(cad: &SignedDistance) -> Option<SignedDistance> {
+    let (lo, hi) = cad.mesh().bounds()?;
+    let diagonal = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
+    let coarse = cad.mesh().clustered(diagonal / PROXY_CELLS);
+    (coarse.triangles.len() * 2 < cad.mesh().triangles.len()).then(|| SignedDistance::new(coarse))
+}
+
 /// The best starting pose for `pts` on `cad` and how it was chosen; `tolerance` (mm) sets the
 /// scoring band. Also the contenders: the distinct poses scoring at least 90 % of the best
 /// (best first, at most 4), for a datum frame to decide between.
@@ -165,7 +179,7 @@ pub(super) fn coarse_alignment(
     // centre: turned about the apex, the surface fits but the outline does not).
     let overhang = band.max(3.0);
     type Scored = (f64, f64, Pose, usize);
-    let refine = |pts: &[[f64; 3]], start: &Pose, iterations: usize| {
+    let refine = |cad: &SignedDistance, pts: &[[f64; 3]], start: &Pose, iterations: usize| {
         let (p, _) = fit_to_surface(pts, cad, *start, iterations, &|_, d| {
             if d.abs() < 50.0 {
                 1.0
@@ -193,11 +207,18 @@ pub(super) fn coarse_alignment(
         .copied()
         .collect();
     // (independent refinements side by side: each is too small to spread over the threads)
-    let mut first: Vec<Scored> = candidates.par_iter().map(|c| refine(&few, c, 8)).collect();
+    // The short fits start far off, where a closest-point query searches a large share of a
+    // fine mesh: they run on its clustered stand-in where that is much smaller (a coarse mesh
+    // only ranks the hypotheses; the most promising are refined on the CAD itself).
+    let stand_in = proxy(cad);
+    let mut first: Vec<Scored> = candidates
+        .par_iter()
+        .map(|c| refine(stand_in.as_ref().unwrap_or(cad), &few, c, 8))
+        .collect();
     first.sort_by(order);
     let scored: Vec<Scored> = first[..first.len().min(6)]
         .par_iter()
-        .map(|(_, _, p, _)| refine(&sub, p, 20))
+        .map(|(_, _, p, _)| refine(cad, &sub, p, 20))
         .collect();
     let mut sorted: Vec<&Scored> = scored.iter().collect();
     sorted.sort_by(|a, b| order(a, b));

@@ -3,6 +3,7 @@
 
 mod bvh;
 mod cells;
+mod clustering;
 mod distance;
 mod obj;
 mod ply;

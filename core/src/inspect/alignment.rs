@@ -179,8 +179,8 @@ pub(super) fn coarse_alignment(
     // centre: turned about the apex, the surface fits but the outline does not).
     let overhang = band.max(3.0);
     type Scored = (f64, f64, Pose, usize);
-    let refine = |cad: &SignedDistance, pts: &[[f64; 3]], start: &Pose, iterations: usize| {
-        let (p, _) = fit_to_surface(pts, cad, *start, iterations, &|_, d| {
+    let refine = |surface: &SignedDistance, pts: &[[f64; 3]], start: &Pose, iterations: usize| {
+        let (p, _) = fit_to_surface(pts, surface, *start, iterations, &|_, d| {
             if d.abs() < 50.0 {
                 1.0
             } else {
@@ -189,7 +189,7 @@ pub(super) fn coarse_alignment(
         });
         let (mut within, mut sq, mut past) = (0usize, 0.0, 0usize);
         for x in pts {
-            if let Some(c) = cad.query(&(p * Point3::from(*x)).coords) {
+            if let Some(c) = surface.query(&(p * Point3::from(*x)).coords) {
                 within += usize::from(c.distance.abs() <= band);
                 past += usize::from(c.beyond_boundary && c.distance.abs() > overhang);
                 sq += c.distance.min(50.0).powi(2);

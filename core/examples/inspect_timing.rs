@@ -34,8 +34,14 @@ fn main() {
         let s = t.elapsed().as_secs_f64();
         let sum: f64 = out.deviations.iter().filter(|d| d.is_finite()).sum();
         println!(
-            "{s:.3} s: {} (deviation sum {sum:.9}, transform {:?})",
-            out.report.verdict, out.report.transform
+            "{s:.3} s: {} (deviation sum {sum:.9}, stability {:?}, transform {:?})",
+            out.report.verdict,
+            out.report
+                .registration
+                .stability
+                .as_ref()
+                .map(|s| s.shift_mm),
+            out.report.transform
         );
     }
 }

@@ -206,10 +206,10 @@ pub(super) fn coarse_alignment(
         .step_by((sub.len() / 800).max(1))
         .copied()
         .collect();
-    // (independent refinements side by side: each is too small to spread over the threads)
     // The short fits start far off, where a closest-point query searches a large share of a
     // fine mesh: they run on its clustered stand-in where that is much smaller (a coarse mesh
-    // only ranks the hypotheses; the most promising are refined on the CAD itself).
+    // only ranks the hypotheses; the most promising are refined on the CAD itself). Each fit
+    // is too small to spread over the threads, so the hypotheses run side by side.
     let stand_in = proxy(cad);
     let mut first: Vec<Scored> = candidates
         .par_iter()

@@ -705,9 +705,10 @@ const FLAT_EVIDENCE: f64 = 0.9;
 const CLEARLY_BETTER: f64 = 0.8;
 
 /// Rival placements resting on the rim at most this many tolerances (and at least 0.5 mm)
-/// apart from the winner do not leave the rim unable to pin the fit: two fits of one trim line's noisy edges settle
-/// that close, and a systematic deviation of two tolerances moves a fit that far along a
-/// weakly pinned motion, which the report states as a warning, not as a part not measured.
+/// apart from the winner do not leave the rim unable to pin the fit: two fits of one trim
+/// line's noisy edges settle that close, and a systematic deviation of two tolerances moves a
+/// fit that far along a weakly pinned motion, which the report states as a warning, not as a
+/// part not measured.
 pub(super) const NEAR_RIVAL: f64 = 2.0;
 
 /// Register `surface` (cloud frame: the trusted points) to `cad` from `pose` together with the

@@ -3,13 +3,20 @@
 //! projector, with the default decoding, without the bend correction and with one edge a side
 //! (diagnostic for issue 41: a free sphere fit to a small cap multiplies a structured radial
 //! error of a hundredth into PS of a tenth).
+//!
+//! It also separates where the error arises: the decoded projector column against the truth
+//! point's own (projected through the true projector), by angle; the truth columns put through
+//! the same reconstruction (PS of the model alone); and with `EDGES=1` a map over the sphere of
+//! the one-edge-a-side decoding minus the interpolation between the exact boundaries (the
+//! crossings' own error, projector pixels × 1000).
 #[path = "../tests/common/mod.rs"]
 mod common;
 
 use std::path::Path;
 
-use ris_core::decode::{decode, DecodeParams};
+use ris_core::decode::{decode, DecodeParams, Decoded};
 use ris_core::geometry::Vec3;
+use ris_core::pattern::CodeAxis;
 use ris_core::sensor::Reconstructor;
 use ris_core::sim::{Scene, SceneFile, Simulator};
 use ris_core::verify::fit::fit_sphere;
@@ -52,14 +59,65 @@ fn main() {
     let eye = scene.camera.center();
     let centre = Vec3::new(x, y, z);
     let light = scene.projector.center();
-    for (name, params) in [
-        ("default", DecodeParams::default()),
+    let on_sphere = |i: usize| -> Option<Vec3> {
+        let t = truth.xyz[i];
+        let t = Vec3::new(t[0] as f64, t[1] as f64, t[2] as f64);
+        (truth.lit[i] >= 0.999 && t.x.is_finite() && ((t - centre).norm() - r).abs() <= 0.01)
+            .then_some(t)
+    };
+    let angle_bin = |t: Vec3| {
+        let n = (t - centre) / r;
+        let a = n.dot(&(eye - t).normalize()).clamp(-1.0, 1.0).acos();
+        ((a.to_degrees() / 15.0) as usize).min(5)
+    };
+    // The truth point's projector column, and the default decoding's error in it by angle.
+    let truth_col: Vec<f32> = truth
+        .xyz
+        .iter()
+        .map(|t| {
+            let p = Vec3::new(t[0] as f64, t[1] as f64, t[2] as f64);
+            scene
+                .projector
+                .project(&p)
+                .map_or(f32::NAN, |(u, _)| u as f32)
+        })
+        .collect();
+    let default = decode(&capture, &DecodeParams::default()).expect("sphere_ps");
+    let mut by_angle = [(0.0, 0usize); 6];
+    for (i, (&c, &t)) in default.col.iter().zip(&truth_col).enumerate() {
+        if let Some(p) = on_sphere(i).filter(|_| c.is_finite()) {
+            let k = angle_bin(p);
+            by_angle[k].0 += f64::from(c - t);
+            by_angle[k].1 += 1;
+        }
+    }
+    println!(
+        "default decoding: projector column minus the truth's by angle (projector px) {}",
+        by_angle
+            .iter()
+            .map(|(s, n)| format!("{:+.4}({n})", s / (*n).max(1) as f64))
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    let mut exact = default.clone();
+    for (c, &t) in exact.col.iter_mut().zip(&truth_col) {
+        if c.is_finite() {
+            *c = t;
+        }
+    }
+    if std::env::var("EDGES").is_ok() {
+        edge_map(&scene, &capture, &on_sphere);
+    }
+    for (name, params, given) in [
+        ("truth columns", DecodeParams::default(), Some(exact)),
+        ("default", DecodeParams::default(), Some(default)),
         (
             "no bend",
             DecodeParams {
                 bend_correction: false,
                 ..DecodeParams::default()
             },
+            None,
         ),
         (
             "window 1, no bend",
@@ -68,9 +126,10 @@ fn main() {
                 edge_window: 1,
                 ..DecodeParams::default()
             },
+            None,
         ),
     ] {
-        let d = decode(&capture, &params).expect("sphere_ps");
+        let d = given.unwrap_or_else(|| decode(&capture, &params).expect("sphere_ps"));
         let rec = Reconstructor::parallax(&scene.camera, scene.projector.center(), &reference)
             .expect("sphere_ps");
         let cloud = rec.reconstruct(&d).expect("sphere_ps");
@@ -78,25 +137,14 @@ fn main() {
         let mut by_angle = [(0.0, 0usize); 6];
         let mut by_az = [(0.0, 0usize); 8];
         for (p, &px) in cloud.points.iter().zip(&cloud.pixels) {
-            let i = px as usize;
-            let t = truth.xyz[i];
-            if truth.lit[i] < 0.999 || !t[0].is_finite() {
+            let Some(t) = on_sphere(px as usize) else {
                 continue;
-            }
-            let t = Vec3::new(t[0] as f64, t[1] as f64, t[2] as f64);
-            if ((t - centre).norm() - r).abs() > 0.01 {
-                continue;
-            }
+            };
             let p = Vec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
             pts.push(p);
             let n = (t - centre) / r;
             let e = (p - centre).norm() - r;
-            let a = n
-                .dot(&(eye - t).normalize())
-                .clamp(-1.0, 1.0)
-                .acos()
-                .to_degrees();
-            let k = ((a / 15.0) as usize).min(5);
+            let k = angle_bin(t);
             by_angle[k].0 += e;
             by_angle[k].1 += 1;
             // Azimuth about the view, 0 = towards the projector.
@@ -120,5 +168,84 @@ fn main() {
             show(&by_angle),
             show(&by_az)
         );
+    }
+}
+
+/// The one-edge-a-side decoding (no bend, phase or smoothing correction) minus the linear
+/// interpolation between the exact boundaries around each pixel of the sphere, found by ray
+/// casts along the pixel's row: what is left is the crossings' own error.
+fn edge_map(
+    scene: &Scene,
+    capture: &ris_core::capture::CaptureSet,
+    on_sphere: &dyn Fn(usize) -> Option<Vec3>,
+) {
+    let params = DecodeParams {
+        edge_window: 1,
+        bend_correction: false,
+        phase_correction: false,
+        cross_smoothing: false,
+        ..DecodeParams::default()
+    };
+    let d: Decoded = decode(capture, &params).expect("sphere_ps");
+    let step = f64::from(d.layout.step(CodeAxis::Column));
+    let w = d.width as usize;
+    let eye = scene.camera.center();
+    let column = |x: f64, y: f64| -> Option<f64> {
+        let ray = scene.camera.ray(x, y);
+        let (t, _, _) = scene.intersect(&eye, &ray, 1e-6, f64::INFINITY)?;
+        scene.projector.project(&(eye + ray * t)).map(|p| p.0)
+    };
+    let pixels: Vec<usize> = (0..d.col.len())
+        .filter(|&i| on_sphere(i).is_some())
+        .collect();
+    let (Some(x0), Some(x1)) = (
+        pixels.iter().map(|i| i % w).min(),
+        pixels.iter().map(|i| i % w).max(),
+    ) else {
+        return;
+    };
+    let (y0, y1) = (pixels[0] / w, pixels[pixels.len() - 1] / w);
+    println!("one edge a side minus the exact boundaries' interpolation, projector px x 1000:");
+    for y in y0..=y1 {
+        let yf = y as f64;
+        let line: String = (x0..=x1)
+            .map(|x| {
+                let i = y * w + x;
+                let decoded = f64::from(d.col[i]);
+                if !decoded.is_finite() || on_sphere(i).is_none() {
+                    return "    .".to_string();
+                }
+                let Some(u) = column(x as f64, yf) else {
+                    return "    ?".to_string();
+                };
+                // The boundaries around u (b = k·step − 0.5) located along the row by bisection.
+                let k = ((u + 0.5) / step).floor();
+                let at = |b: f64| -> Option<f64> {
+                    let (mut lo, mut hi) = (x as f64 - 4.0, x as f64 + 4.0);
+                    let below = column(lo, yf)? < b;
+                    if (column(hi, yf)? < b) == below {
+                        return None;
+                    }
+                    for _ in 0..40 {
+                        let mid = 0.5 * (lo + hi);
+                        if (column(mid, yf)? < b) == below {
+                            lo = mid;
+                        } else {
+                            hi = mid;
+                        }
+                    }
+                    Some(0.5 * (lo + hi))
+                };
+                let (ba, bb) = (k * step - 0.5, (k + 1.0) * step - 0.5);
+                match (at(ba), at(bb)) {
+                    (Some(xa), Some(xb)) => {
+                        let p = ba + (bb - ba) * (x as f64 - xa) / (xb - xa);
+                        format!("{:5.0}", (decoded - p) * 1000.0)
+                    }
+                    _ => "    ?".to_string(),
+                }
+            })
+            .collect();
+        println!("{line}");
     }
 }

@@ -43,9 +43,10 @@ def main():
     series, limits, names = parse(sys.argv[1])
     reports = [json.load(open(p, encoding="utf-8")) for p in sys.argv[2:]]
     checked = 0
-    for name in ("mean", "rms", "p05", "p95", "min", "max"):
+    for name, key in (("mean", "mean"), ("rms", "rms"), ("p05", "p05"), ("p95", "p95"),
+                      ("robust min", "robust_min"), ("robust max", "robust_max")):
         got = series.get(name)
-        want = [r["statistics"][name] for r in reports]
+        want = [r["statistics"][key] for r in reports]
         if got != want:
             sys.exit(f"{name}: the export has {got}, the reports {want}")
         checked += len(got)

@@ -77,17 +77,18 @@ fn main() {
                 ..ScanRecord::default()
             };
             let wobble = ((i as f64) * 0.37).sin();
-            let values: Vec<Characteristic> = ["mean", "p05", "p95", "min", "max", "rms"]
-                .iter()
-                .enumerate()
-                .map(|(k, n)| Characteristic {
-                    name: (*n).into(),
-                    value: 0.01 * wobble + 0.05 * k as f64,
-                    lower: Some(-0.5),
-                    upper: Some(0.5),
-                    unit: "mm",
-                })
-                .collect();
+            let values: Vec<Characteristic> =
+                ["mean", "p05", "p95", "robust min", "robust max", "rms"]
+                    .iter()
+                    .enumerate()
+                    .map(|(k, n)| Characteristic {
+                        name: (*n).into(),
+                        value: 0.01 * wobble + 0.05 * k as f64,
+                        lower: Some(-0.5),
+                        upper: Some(0.5),
+                        unit: "mm",
+                    })
+                    .collect();
             h.record(&scan, &values).expect("record");
         }
     }

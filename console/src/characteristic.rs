@@ -20,7 +20,8 @@ pub struct Characteristic {
 }
 
 /// The characteristics `report` (a `report.json`) carries: the deviation statistics (mean,
-/// RMS, 5th and 95th percentiles, minimum, maximum) against ± tolerance, the share of points in
+/// RMS, 5th and 95th percentiles, the robust minimum and maximum — 0.01 % and 99.99 %
+/// quantiles) against ± tolerance, the share of points in
 /// tolerance, the coverage against its minimum, each datum's mean and 99th percentile, and the
 /// out-of-tolerance regions (count, points, largest |peak|), and the part's ISO 1101
 /// characteristics (`flatness top`, `position bore A`, ...) with their limits. Figures the
@@ -41,8 +42,16 @@ pub fn from_report(report: &Value) -> Vec<Characteristic> {
     };
     let s = &report["statistics"];
     let band = (tol.map(|t| -t), tol);
-    for key in ["mean", "p05", "p95", "min", "max"] {
-        push(key.into(), s[key].as_f64(), band.0, band.1, "mm");
+    // The extremes are charted without the noise's last points: a single stray point of a
+    // million would move `min` or `max` from scan to scan and fire rules on nothing.
+    for (name, key) in [
+        ("mean", "mean"),
+        ("p05", "p05"),
+        ("p95", "p95"),
+        ("robust min", "robust_min"),
+        ("robust max", "robust_max"),
+    ] {
+        push(name.into(), s[key].as_f64(), band.0, band.1, "mm");
     }
     push("rms".into(), s["rms"].as_f64(), None, tol, "mm");
     push(
@@ -162,7 +171,8 @@ mod tests {
             "tolerance_mm": 0.5,
             "coverage": {"fraction": 0.8, "minimum": 0.6},
             "statistics": {"mean": 0.01, "rms": 0.1, "p05": -0.2, "p95": 0.2, "min": -0.6,
-                           "max": 0.3, "within_tolerance": 0.99},
+                           "max": 0.3, "robust_min": -0.4, "robust_max": 0.25,
+                           "within_tolerance": 0.99},
             "datums": [{"name": "A", "mean": 0.02, "p99_abs": 0.3}],
             "regions_out_of_tolerance": [{"points": 40, "peak_deviation_mm": -0.6}]
         });
@@ -174,6 +184,12 @@ mod tests {
             (Some(-0.5), Some(0.5))
         );
         assert_eq!((get("rms").lower, get("rms").upper), (None, Some(0.5)));
+        assert_eq!(get("robust min").value, -0.4);
+        assert_eq!(get("robust max").upper, Some(0.5));
+        assert!(
+            !c.iter().any(|c| c.name == "min" || c.name == "max"),
+            "single points are not charted"
+        );
         assert!((get("coverage").value - 80.0).abs() < 1e-12);
         assert_eq!(get("coverage").lower, Some(60.0));
         assert_eq!(get("datum A p99").value, 0.3);

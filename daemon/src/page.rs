@@ -176,6 +176,14 @@ fn render(
             ("min, mm", num(&st["min"], 4)),
             ("max, mm", num(&st["max"], 4)),
             (
+                "robust min / max (0.01 % / 99.99 %), mm",
+                format!(
+                    "{} / {}",
+                    num(&st["robust_min"], 4),
+                    num(&st["robust_max"], 4)
+                ),
+            ),
+            (
                 "5th / 50th / 95th percentile, mm",
                 format!(
                     "{} / {} / {}",

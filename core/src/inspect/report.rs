@@ -21,6 +21,11 @@ pub struct Statistics {
     pub min: f64,
     /// Maximum.
     pub max: f64,
+    /// 0.01 % quantile: the low extreme without the noise's last points (the 120th lowest of
+    /// 1.2 M), which a trend can chart where one stray point would move `min`.
+    pub robust_min: f64,
+    /// 99.99 % quantile: the high extreme as [`Statistics::robust_min`] is the low.
+    pub robust_max: f64,
     /// 5th percentile.
     pub p05: f64,
     /// Median.
@@ -128,6 +133,10 @@ pub struct Report {
     pub characteristics: Vec<super::CharacteristicResult>,
 }
 
+/// Share of the points left out at either end for [`Statistics::robust_min`] and
+/// [`Statistics::robust_max`].
+const ROBUST_TAIL: f64 = 1e-4;
+
 /// The `q` quantile of `v` (reordering it): the value that `v` sorted holds at index
 /// `round((len − 1) q)`, found in linear time; NaN when `v` is empty.
 fn percentile_of(v: &mut [f64], q: f64) -> f64 {
@@ -160,6 +169,8 @@ pub(super) fn build(
         std: (rms * rms - mean * mean).max(0.0).sqrt(),
         min: percentile_of(&mut finite, 0.0),
         max: percentile_of(&mut finite, 1.0),
+        robust_min: percentile_of(&mut finite, ROBUST_TAIL),
+        robust_max: percentile_of(&mut finite, 1.0 - ROBUST_TAIL),
         p05: percentile_of(&mut finite, 0.05),
         p50: percentile_of(&mut finite, 0.5),
         p95: percentile_of(&mut finite, 0.95),

@@ -4,7 +4,10 @@ use rayon::prelude::*;
 
 use super::ScanDirection;
 
+mod crossing_model;
 mod phase_bias;
+
+use crossing_model::CrossingModel;
 
 use crate::image::Sample;
 use crate::pattern::{binary_to_gray, flipped_bit};
@@ -65,6 +68,9 @@ struct Edge {
     /// Reliability in (0, 1]: (smaller / larger contrast of the two pixels)^power. A crossing
     /// next to an albedo edge is biased, so it counts less in the line fit.
     weight: f32,
+    /// The normalised signal's rise across the gap, |s₀ − s₁| (2 for a hard step between two
+    /// wide stripes): how sharp the blurred step is (see [`CrossingModel`]).
+    slope: f32,
 }
 
 /// Geometry of one camera line through the row-major image.
@@ -85,7 +91,9 @@ struct Code {
     albedo_power: u32,
     /// The bend's filter for a whole symmetric window, when the bend is corrected.
     bend: Option<BendFilter>,
-    /// The capture's crossing bias, subtracted from every edge, when it is corrected.
+    /// The capture's crossing model, applied to every edge, when the bias is corrected.
+    model: Option<CrossingModel>,
+    /// The capture's crossing bias as harmonics of the phase, where the model was not measured.
     phase: Option<phase_bias::PhaseBias>,
 }
 
@@ -121,10 +129,11 @@ pub(super) fn subpixel<T: Sample>(
         bend: params
             .bend_correction
             .then(|| BendFilter::new(wide_window(params.edge_window.max(1)))),
+        model: None,
         phase: None,
     };
     if params.phase_correction {
-        code.phase = phase_bias(w, h, codes, signal, dir, &code);
+        (code.model, code.phase) = crossing_bias(w, h, codes, signal, dir, &code);
     }
     let mut coord = vec![f32::NAN; w * h];
     let mut quality = vec![0f32; w * h];
@@ -231,16 +240,17 @@ pub(super) fn subpixel<T: Sample>(
 /// (an 800x600 capture's every fifteenth row; some 30 000 edges).
 const PHASE_LINES: usize = 40;
 
-/// The crossing bias of this capture along `dir` (see [`phase_bias`]), measured on
-/// [`PHASE_LINES`] lines; `None` where too few edges were found to measure it.
-fn phase_bias<T: Sample>(
+/// The crossing bias of this capture along `dir`, measured on [`PHASE_LINES`] lines: the
+/// model of the blurred step (see [`CrossingModel`]) or, where the model cannot be measured,
+/// the phase bias's harmonics (see [`phase_bias`]); both `None` where too few edges tell either.
+fn crossing_bias<T: Sample>(
     w: usize,
     h: usize,
     codes: &[i32],
     signal: &Signal<'_, T>,
     dir: ScanDirection,
     code: &Code,
-) -> Option<phase_bias::PhaseBias> {
+) -> (Option<CrossingModel>, Option<phase_bias::PhaseBias>) {
     let (lines, len, along, across) = match dir {
         ScanDirection::AlongRows => (h, w, 1, w),
         ScanDirection::AlongColumns => (w, h, w, 1),
@@ -269,7 +279,17 @@ fn phase_bias<T: Sample>(
             edges
         })
         .collect();
-    let bias = phase_bias::measure(&sample, code.window);
+    let model = CrossingModel::measure(&sample, f64::from(code.step));
+    // The harmonics stand in where the model could not be measured. After the model they
+    // would fit what it leaves on phases that cluster (a flat at a constant magnification
+    // shows a handful), where their fit is degenerate (see BENCHMARKS.md, session 55).
+    let bias = match &model {
+        Some(m) => {
+            tracing::debug!(direction = ?dir, sigma = m.sigma(), "crossing model measured");
+            None
+        }
+        None => phase_bias::measure(&sample, code.window),
+    };
     match &bias {
         Some(b) => tracing::debug!(
             direction = ?dir,
@@ -279,11 +299,14 @@ fn phase_bias<T: Sample>(
         ),
         None => tracing::debug!(direction = ?dir, "crossing bias not measured"),
     }
-    bias
+    (model, bias)
 }
 
-/// Subtract the capture's crossing bias (if measured) from one line's edges.
+/// Remove the capture's crossing bias (as far as measured) from one line's edges.
 fn correct_phase(edges: &mut [Edge], code: &Code, scratch: &mut phase_bias::Scratch) {
+    if let Some(model) = &code.model {
+        model.correct(edges, f64::from(code.step));
+    }
     if let Some(bias) = &code.phase {
         bias.correct(edges, code.window, scratch);
     }
@@ -809,6 +832,7 @@ fn gap_edges<T: Sample>(
         let t = s0 / den;
         if (0.0..=1.0).contains(&t) {
             edges.push(Edge {
+                slope: den.abs(),
                 gap: n as u32,
                 x: n as f32 + t,
                 boundary: b,
@@ -874,6 +898,7 @@ mod tests {
                     boundary: b,
                     chain: 1,
                     weight: 1.0,
+                    slope: 1.0,
                 }
             })
             .collect()

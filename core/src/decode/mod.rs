@@ -63,9 +63,11 @@ pub struct DecodeParams {
     /// beyond the line's window; see `line_shift::add_bend`). Off, a sphere's surface reads
     /// about 0.1 mm inside at the default window.
     pub bend_correction: bool,
-    /// Remove the crossing's phase bias (measured on each capture; see
-    /// `line_shift::phase_bias`): off, the coordinates carry a moiré of the camera's and the
-    /// projector's pixel grids of 0.01–0.02 projector pixels.
+    /// Remove the crossing's phase bias: each edge solved through a model of the blurred,
+    /// pixel-integrated step whose blur each capture measures (`line_shift::crossing_model`;
+    /// the phase's harmonics, `line_shift::phase_bias`, where it cannot). Off, the coordinates
+    /// carry a moiré of the camera's and the projector's pixel grids of 0.01–0.02 projector
+    /// pixels on flats and ±0.05 on small spheres.
     pub phase_correction: bool,
 }
 

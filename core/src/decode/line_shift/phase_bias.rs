@@ -514,6 +514,7 @@ mod tests {
                     boundary: b,
                     chain: b / 40,
                     weight: 1.0,
+                    slope: 1.0,
                 }
             })
             .collect()

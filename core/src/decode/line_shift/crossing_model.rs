@@ -37,7 +37,7 @@ const T_NODES: usize = 33;
 const SIGMA_RANGE: (f64, f64) = (0.1, 4.0);
 
 /// Sampled edges used to measure σ (evenly picked).
-const SIGMA_EDGES: usize = 3000;
+const SIGMA_EDGES: usize = 1500;
 
 /// Edges beside an albedo edge (see `Edge::weight`) do not measure the blur.
 const MIN_WEIGHT: f32 = 0.5;
@@ -48,7 +48,7 @@ const REACH: usize = 3;
 
 /// Rounds of the blur's fit: the first reads each slope at its linear crossing, the next at
 /// the phase the model before gave it.
-const ROUNDS: usize = 5;
+const ROUNDS: usize = 3;
 
 /// Edges needed to measure σ.
 const MIN_EDGES: usize = 200;

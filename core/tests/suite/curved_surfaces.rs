@@ -16,7 +16,10 @@
 //! ci -p ris-core --example sphere_ps` with `NOISELESS=1`) a 21.9 mm sphere reads PS −0.046,
 //! −0.008 and −0.048 mm at three places of the view (−0.095, +0.062, −0.031 with the crossing
 //! bias as harmonics of the phase), a 40 mm one −0.004 mm. The family's median and mean are
-//! held tight, and each shape only within that scatter.
+//! held tight, and each shape only within that scatter. With noise the family (12 spheres)
+//! reads a median |PS| of 0.028 mm, a mean of −0.006 mm and the worst 0.109 mm (the 21.9 mm
+//! sphere); its spheres of 50–55 mm read +0.025…+0.031 mm, where noise-free a 40 mm one reads
+//! −0.004: the bounds below keep that margin and no more.
 
 use crate::common;
 
@@ -225,7 +228,7 @@ fn spheres_of_20_to_60_mm_are_measured_without_bias_and_flats_keep_their_noise()
         mean(&bias)
     );
     assert!(
-        worst(&bias) <= 0.025,
+        worst(&bias) <= 0.02,
         "a sphere's radial bias {:.4} mm",
         worst(&bias)
     );
@@ -234,8 +237,8 @@ fn spheres_of_20_to_60_mm_are_measured_without_bias_and_flats_keep_their_noise()
     sizes.sort_by(f64::total_cmp);
     let median = 0.5 * (sizes[sizes.len() / 2 - 1] + sizes[sizes.len() / 2]);
     assert!(median <= 0.035, "the median |PS| {median:.4} mm");
-    assert!(mean(&ps).abs() <= 0.035, "PS mean {:+.4} mm", mean(&ps));
-    assert!(worst(&ps) <= 0.25, "a sphere's PS {:.4} mm", worst(&ps));
+    assert!(mean(&ps).abs() <= 0.02, "PS mean {:+.4} mm", mean(&ps));
+    assert!(worst(&ps) <= 0.15, "a sphere's PS {:.4} mm", worst(&ps));
     // The table: the pixel grids' moiré is gone from the decoding (it read 0.057 mm).
     for sd in &flat_sd {
         assert!(*sd <= 0.03, "the table's SD {sd:.4} mm");

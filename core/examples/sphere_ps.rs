@@ -1,8 +1,9 @@
 //! PS of one sphere through the demo sensor (X, Y, Z, R in mm; NOISELESS=1 without read and
-//! shot noise): where its radial error lies, by angle from the view and by azimuth from the
-//! projector, with the default decoding, without the bend correction and with one edge a side
-//! (diagnostic for issue 41: a free sphere fit to a small cap multiplies a structured radial
-//! error of a hundredth into PS of a tenth).
+//! shot noise; SS the render's samples a pixel side, 4 by default): where its radial error
+//! lies, by angle from the view and by azimuth from the projector, with the default decoding,
+//! without the bend correction and with one edge a side (diagnostic for issue 41: a free
+//! sphere fit to a small cap multiplies a structured radial error of a hundredth into PS of a
+//! tenth).
 //!
 //! It also separates where the error arises: the decoded projector column against the truth
 //! point's own (projected through the true projector), by angle; the truth columns put through
@@ -40,7 +41,10 @@ fn main() {
         arg("R", 10.95),
     );
     let base_text = format!("{optics}\n[material.ball]\nalbedo = 0.6\n\n[[object]]\nshape = \"plane\"\nmaterial = \"table\"\n");
-    let text = format!("{base_text}[[object]]\nshape = \"sphere\"\nmaterial = \"ball\"\ncenter = [{x}, {y}, {z}]\nradius = {r}\n");
+    let mut text = format!("{base_text}[[object]]\nshape = \"sphere\"\nmaterial = \"ball\"\ncenter = [{x}, {y}, {z}]\nradius = {r}\n");
+    if let Ok(ss) = std::env::var("SS") {
+        text.push_str(&format!("[render]\nsupersample = {ss}\n"));
+    }
     let scene = Scene::from_file(
         toml::from_str::<SceneFile>(&text).expect("sphere_ps"),
         Path::new("."),

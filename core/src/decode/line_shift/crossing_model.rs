@@ -421,7 +421,7 @@ mod tests {
                     .fold(0.0, f64::max);
                 let model = CrossingModel::measure(&[edges.clone()], 1.0).expect("measured");
                 assert!(
-                    // Worst at the densest edges (m 1.37, σ 0.3: 3.1 %), where the
+                    // Worst at the densest edges (m 1.37, σ 0.3: 3.0 %), where the
                     // magnifications read over three neighbours are least exact.
                     (model.sigma() / sigma - 1.0).abs() < 0.035,
                     "σ {sigma} at m {m}: measured {}",
